@@ -1,0 +1,262 @@
+"""Log files as sources: dataflash ``.bin`` and telemetry ``.tlog``, recognised by content, not name.
+
+A synchronous :class:`LogReader` does the parsing (pymavlink) and hands out events in batches, time
+ordered through a short reorder buffer; :class:`FileSource` runs it in a worker thread so the asyncio
+loop never blocks. :func:`read_events` is the synchronous whole-file shortcut for tools and tests.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import struct
+from collections.abc import AsyncIterator
+from pathlib import Path
+
+from companion.events import Event
+from companion.sources.base import Source, SourceError, SourceInfo
+from companion.timebase import ReorderBuffer
+
+DATAFLASH_MAGIC = b"\xa3\x95"
+MAVLINK_STX = (0xFE, 0xFD)
+#: Events of different types within this window are put in time order.
+REORDER_HORIZON_S = 0.5
+#: A tlog record timestamp must be a plausible Unix time in µs (1995..2100).
+_TLOG_TS_RANGE = (788918400_000000, 4102444800_000000)
+
+
+def detect_format(path: str | os.PathLike) -> str:
+    """'dataflash' or 'tlog' from the file's first bytes; SourceError with the reason otherwise."""
+    p = Path(path)
+    if not p.exists():
+        raise SourceError(f"{p}: no such file")
+    if p.is_dir():
+        raise SourceError(f"{p}: is a directory, not a log file")
+    try:
+        with open(p, "rb") as f:
+            head = f.read(64)
+    except OSError as err:
+        raise SourceError(f"{p}: cannot read ({err.strerror})") from None
+    if not head:
+        raise SourceError(f"{p}: the file is empty")
+    if head.startswith(DATAFLASH_MAGIC):
+        return "dataflash"
+    if len(head) >= 9 and head[8] in MAVLINK_STX:
+        (ts,) = struct.unpack(">Q", head[:8])
+        if _TLOG_TS_RANGE[0] <= ts <= _TLOG_TS_RANGE[1]:
+            return "tlog"
+    if head.lstrip()[:4] in (b"FMT,", b"FMT ") or b"FMT, " in head:
+        raise SourceError(f"{p}: text dataflash logs (.log) are not supported; use the binary .bin log")
+    kind = "a text file" if _looks_text(head) else "unrecognised binary data"
+    raise SourceError(
+        f"{p}: not an ArduPilot log — it holds {kind}, neither a dataflash .bin "
+        f"(starts with A3 95) nor a telemetry .tlog (8-byte time stamp + MAVLink frame)"
+    )
+
+
+def _looks_text(head: bytes) -> bool:
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError:
+        return False
+    return True
+
+
+class LogReader:
+    """Base of the synchronous readers: ``read_batch(n)`` returns up to n events, [] at the end."""
+
+    kind = "log"
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = Path(path)
+        self.size_bytes = self.path.stat().st_size
+        self.info = SourceInfo(kind=self.kind, location=str(self.path))
+        self._reorder = ReorderBuffer(REORDER_HORIZON_S)
+        self._done = False
+        self.messages_read = 0
+
+    # subclasses: yield raw events in file order until exhausted; may raise SourceError
+    def _next_events(self) -> list[Event] | None:
+        raise NotImplementedError
+
+    def _final_events(self) -> list[Event]:
+        return []
+
+    def offset(self) -> int:
+        return 0
+
+    def _parse_failed(self, err: Exception) -> None:
+        """pymavlink choked on a corrupt or truncated stretch: keep what was read, say where."""
+        self.info.warnings.append(
+            f"stopped reading at byte {self.offset()} of {self.size_bytes}: "
+            f"{err.__class__.__name__}: {err} (file damaged or truncated?)"
+        )
+
+    def read_batch(self, n: int = 2000) -> list[Event]:
+        out: list[Event] = []
+        while len(out) < n and not self._done:
+            evs = self._next_events()
+            if evs is None:
+                self._done = True
+                for ev in self._final_events():
+                    out += self._reorder.push(ev)
+                out += self._reorder.flush()
+                break
+            for ev in evs:
+                out += self._reorder.push(ev)
+        return out
+
+    def close(self) -> None:
+        pass
+
+
+class DataflashReader(LogReader):
+    kind = "dataflash"
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        super().__init__(path)
+        from pymavlink import DFReader
+
+        from companion.sources.dataflash import WANTED, DataflashDecoder
+
+        self._wanted = WANTED
+        try:
+            self._log = DFReader.DFReader_binary(str(self.path), zero_time_base=False)
+        except Exception as err:  # pymavlink raises assorted errors on garbage
+            raise SourceError(f"{self.path}: not a readable dataflash log ({err.__class__.__name__}: {err})") from None
+        if not getattr(self._log, "formats", None) or len(self._log.formats) <= 1:
+            raise SourceError(f"{self.path}: dataflash log without message formats (FMT); damaged or not a log")
+        self._decoder = DataflashDecoder()
+        self._truncation_checked = False
+
+    def offset(self) -> int:
+        return int(getattr(self._log, "offset", 0))
+
+    def _next_events(self) -> list[Event] | None:
+        try:
+            msg = self._log.recv_match(type=self._wanted)
+        except Exception as err:  # noqa: BLE001 - pymavlink raises assorted errors on corrupt data
+            self._parse_failed(err)
+            return None
+        if msg is None:
+            if not self._truncation_checked:
+                self._truncation_checked = True
+                remaining = self.size_bytes - self.offset()
+                if remaining > 3:
+                    self.info.warnings.append(
+                        f"log ends mid-record: {remaining} bytes after offset {self.offset()} could not "
+                        f"be parsed (truncated file?)"
+                    )
+            return None
+        self.messages_read += 1
+        return self._decoder.decode(msg)
+
+    def _final_events(self) -> list[Event]:
+        evs = self._decoder.flush()
+        if self._decoder.firmware:
+            self.info.details["firmware"] = self._decoder.firmware
+        for why, n in sorted(self._decoder.dropped.items()):
+            self.info.warnings.append(f"dropped {n} rows: {why}")
+        return evs
+
+
+class TlogReader(LogReader):
+    kind = "tlog"
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        super().__init__(path)
+        from pymavlink import mavutil
+
+        from companion.sources.mavlink_decode import WANTED_TYPES, MavlinkDecoder
+
+        try:
+            self._log = mavutil.mavlogfile(str(self.path), notimestamps=False)
+        except Exception as err:
+            raise SourceError(f"{self.path}: not a readable telemetry log ({err.__class__.__name__}: {err})") from None
+        self._wanted = set(WANTED_TYPES)
+        self._decoder = MavlinkDecoder()
+
+    def offset(self) -> int:
+        try:
+            return self._log.f.tell()
+        except (OSError, ValueError):
+            return self.size_bytes
+
+    def _next_events(self) -> list[Event] | None:
+        while True:
+            try:
+                msg = self._log.recv_msg()
+            except Exception as err:  # noqa: BLE001 - pymavlink raises assorted errors on corrupt data
+                self._parse_failed(err)
+                return None
+            if msg is None:
+                return None
+            self.messages_read += 1
+            mtype = msg.get_type()
+            if mtype in self._wanted or mtype == "BAD_DATA":
+                return self._decoder.decode(msg, msg._timestamp)
+
+    def _final_events(self) -> list[Event]:
+        for why, n in sorted(self._decoder.dropped.items()):
+            self.info.warnings.append(f"dropped {n} messages: {why}")
+        if self._decoder.target_system is not None:
+            self.info.details["autopilot"] = f"system {self._decoder.target_system} component {self._decoder.target_component}"
+        return []
+
+    def close(self) -> None:
+        try:
+            self._log.close()
+        except Exception:  # noqa: BLE001 - closing a half-broken log must not mask the real error
+            pass
+
+
+def open_reader(path: str | os.PathLike) -> LogReader:
+    kind = detect_format(path)
+    return DataflashReader(path) if kind == "dataflash" else TlogReader(path)
+
+
+def read_events(path: str | os.PathLike) -> list[Event]:
+    """Every event of a log file, time ordered, on the vehicle clock (synchronous)."""
+    reader = open_reader(path)
+    try:
+        events: list[Event] = []
+        while True:
+            batch = reader.read_batch(5000)
+            if not batch:
+                break
+            events += batch
+    finally:
+        reader.close()
+    if not events:
+        raise SourceError(f"{path}: no usable messages (no IMU, GNSS, attitude or time messages found)")
+    return events
+
+
+class FileSource(Source):
+    """A log file as an async iterator; parsing runs in a worker thread, in batches."""
+
+    def __init__(self, path: str | os.PathLike, batch_size: int = 2000) -> None:
+        self._reader = open_reader(path)
+        self.info = self._reader.info
+        self._batch_size = batch_size
+        self.events_out = 0
+
+    def progress(self) -> tuple[int, int] | None:
+        return (self._reader.offset(), self._reader.size_bytes)
+
+    async def _iterate(self) -> AsyncIterator[Event]:
+        while True:
+            batch = await asyncio.to_thread(self._reader.read_batch, self._batch_size)
+            if not batch:
+                break
+            for ev in batch:
+                self.events_out += 1
+                yield ev
+        if self.events_out == 0:
+            raise SourceError(f"{self.info.location}: no usable messages (no IMU, GNSS, attitude or time messages found)")
+
+    def __aiter__(self) -> AsyncIterator[Event]:
+        return self._iterate()
+
+    async def aclose(self) -> None:
+        self._reader.close()
