@@ -87,6 +87,17 @@ class Pipeline:
 UERE_M = 2.5
 
 
+def build_pipeline(sink: Sink | None, *, nav_config: Any = None, extra_stages: Iterable[Stage] = ()) -> Pipeline:
+    """The one pipeline wiring used by replay, the live runtime and the benchmarks.
+
+    source events -> [navigator (KNN predictor + INS + Kalman integrator)] -> extra stages (e.g. the
+    GPS_INPUT injector, which consumes the navigator's FusedState) -> sink.
+    """
+    stages: list[Stage] = []
+    stages += list(extra_stages)
+    return Pipeline(stages=stages, sink=sink)
+
+
 def _gnss_cov_enu_m2(fix: GnssFix) -> list[list[float]] | None:
     """Diagonal ENU covariance from the receiver's accuracy fields, else from DOP x UERE; None if unknown."""
     h = fix.h_acc_m if fix.h_acc_m is not None else (fix.hdop * UERE_M if fix.hdop is not None else None)

@@ -8,6 +8,8 @@ loop never blocks. :func:`read_events` is the synchronous whole-file shortcut fo
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import io
 import os
 import struct
 from collections.abc import AsyncIterator
@@ -120,14 +122,37 @@ class DataflashReader(LogReader):
         from companion.sources.dataflash import WANTED, DataflashDecoder
 
         self._wanted = WANTED
+        noise = io.StringIO()  # DFReader prints "bad header" lines on stderr; count them instead
         try:
-            self._log = DFReader.DFReader_binary(str(self.path), zero_time_base=False)
+            with contextlib.redirect_stderr(noise), contextlib.redirect_stdout(noise):
+                self._log = DFReader.DFReader_binary(str(self.path), zero_time_base=False)
         except Exception as err:  # pymavlink raises assorted errors on garbage
             raise SourceError(f"{self.path}: not a readable dataflash log ({err.__class__.__name__}: {err})") from None
         if not getattr(self._log, "formats", None) or len(self._log.formats) <= 1:
             raise SourceError(f"{self.path}: dataflash log without message formats (FMT); damaged or not a log")
+        bad = noise.getvalue().count("bad header")
+        if bad:
+            self.info.warnings.append(f"skipped {bad} corrupt bytes between records")
+        self._check_tail()
         self._decoder = DataflashDecoder()
-        self._truncation_checked = False
+
+    def _check_tail(self) -> None:
+        """Say when the last record is cut short or an unparsable stretch ends the file."""
+        log = self._log
+        formats = log.formats
+        last_start, last_end = 0, 0
+        for mtype, offs in enumerate(getattr(log, "offsets", [])):
+            if offs and mtype in formats and offs[-1] >= last_start:
+                last_start, last_end = offs[-1], offs[-1] + formats[mtype].len
+        if last_end > self.size_bytes:
+            self.info.warnings.append(
+                f"truncated: the last record (at byte {last_start}) needs {last_end - last_start} bytes but the "
+                f"file ends after {self.size_bytes - last_start}"
+            )
+        elif self.size_bytes - last_end > 528:  # DFReader's own allowance for block-log padding
+            self.info.warnings.append(
+                f"the last {self.size_bytes - last_end} bytes (from byte {last_end}) are not dataflash records"
+            )
 
     def offset(self) -> int:
         return int(getattr(self._log, "offset", 0))
@@ -139,14 +164,6 @@ class DataflashReader(LogReader):
             self._parse_failed(err)
             return None
         if msg is None:
-            if not self._truncation_checked:
-                self._truncation_checked = True
-                remaining = self.size_bytes - self.offset()
-                if remaining > 3:
-                    self.info.warnings.append(
-                        f"log ends mid-record: {remaining} bytes after offset {self.offset()} could not "
-                        f"be parsed (truncated file?)"
-                    )
             return None
         self.messages_read += 1
         return self._decoder.decode(msg)
