@@ -1,0 +1,414 @@
+"""MCAP recorder: every pipeline step on its own JSON topic, positions as Foxglove LocationFix.
+
+Time: a message's log_time and publish_time are the vehicle time ``t_s`` of what it records, in integer
+nanoseconds (``round(t_s * 1e9)``); wall-clock time never enters the record. Payloads are
+``json.dumps(d, separators=(",", ":"), allow_nan=False)`` of the dataclass's ``to_dict()``, so the same
+input gives byte-identical payloads (and, with the same software versions, a byte-identical file).
+
+Durability. A killed process (SIGKILL, OOM, power cut after the OS wrote its cache) loses only the chunk
+in progress:
+
+* The mcap ``Writer`` gets an unbuffered file (:class:`_DirectFile`), so every record it writes -- a
+  finished chunk, its message indexes, a metadata record -- is handed to the OS at once.
+* A chunk is closed (``Writer.flush()``, public API) when ``flush_interval_s`` of *message* time has
+  passed since its first message or when about ``chunk_size`` bytes of messages fill it, whichever
+  comes first. The Writer's own size trigger is switched off (its chunk_size is set to "never") so the
+  recorder alone decides chunk boundaries and knows when one was written. A live process that is
+  killed thus loses at most ~``flush_interval_s`` of data; :meth:`Recorder.flush` closes the chunk on
+  demand (e.g. from a wall-clock timer in the live loop when messages stop arriving).
+* ``close()`` writes the summary section and footer (``Writer.finish()``); it is idempotent and runs from
+  ``finally`` / ``with`` blocks, so SIGTERM/SIGINT handled by cancelling the asyncio task finalise the file.
+
+:func:`companion.record.inspect.summarize` reads a finalised file through its summary section and a
+killed one by streaming records up to the truncation point.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import operator
+import os
+from collections.abc import Mapping, Sequence
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
+
+import companion
+from companion.events import Event
+from companion.record.inspect import RecordError
+from companion.record.schemas import (
+    COV_DIAGONAL_KNOWN,
+    COV_KNOWN,
+    COV_UNKNOWN,
+    JSON_MESSAGE_ENCODING,
+    JSON_SCHEMA_ENCODING,
+    LOCATION_FIX_SCHEMA,
+    LOCATION_FIX_SCHEMA_NAME,
+    _plain,
+    dataclass_schema,
+    schema_name,
+)
+
+_COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+_NEVER = 1 << 62  # Writer chunk_size that never triggers: the recorder decides chunk boundaries
+_MESSAGE_OVERHEAD = 1 + 8 + 2 + 4 + 8 + 8  # opcode, record length, channel, sequence, log/publish time
+
+
+def _dumps(d: Any) -> bytes:
+    try:
+        return json.dumps(d, separators=(",", ":"), allow_nan=False).encode()
+    except (ValueError, TypeError):
+        # NaN/inf or numpy values that to_dict() did not convert: make them plain JSON, then retry.
+        return json.dumps(_plain(d), separators=(",", ":"), allow_nan=False).encode()
+
+
+def _time_ns(t_s: Any) -> int:
+    """Vehicle time in integer nanoseconds; raises ValueError for None/NaN/negative times."""
+    try:
+        t = round(t_s * 1e9)
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"cannot record a message with time t_s={t_s!r}: need a finite number of seconds") from None
+    if t < 0:
+        raise ValueError(f"cannot record a message with negative time t_s={t_s!r} (MCAP times are unsigned)")
+    return t
+
+
+class _DirectFile:
+    """Write-only file whose writes go straight to the OS (no Python-level buffer).
+
+    Not an ``io.RawIOBase`` on purpose: the mcap Writer would wrap one in a BufferedWriter again.
+    """
+
+    def __init__(self, path: Path):
+        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        self._pos = 0
+
+    def write(self, data) -> int:
+        n = len(data)
+        view = memoryview(data)
+        while view:
+            view = view[os.write(self._fd, view):]
+        self._pos += n
+        return n
+
+    def tell(self) -> int:
+        return self._pos
+
+    def flush(self) -> None:  # nothing is buffered here
+        pass
+
+    def fsync(self) -> None:
+        os.fsync(self._fd)
+
+    def close(self) -> None:
+        if self._fd >= 0:
+            fd, self._fd = self._fd, -1
+            os.close(fd)
+
+
+class Recorder:
+    """Writes an MCAP file: one JSON topic per recorded type, LocationFix topics for the Map panel.
+
+    :param path: output file (created or truncated).
+    :param chunk_size: close a chunk when its messages reach about this many bytes (uncompressed).
+    :param flush_interval_s: close a chunk when this much *message* time has passed since its first message.
+    :param compression: "zstd" (default; ``zstandard`` is a dependency of ``mcap``), "lz4" or "none".
+    :param fsync: also ``os.fsync`` whenever a chunk closes (survives power loss, costs SD-card writes).
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        chunk_size: int = 512 * 1024,
+        flush_interval_s: float = 1.0,
+        compression: str = "zstd",
+        fsync: bool = False,
+    ):
+        if compression not in _COMPRESSION:
+            raise ValueError(f"compression must be one of {sorted(_COMPRESSION)}, not {compression!r}")
+        if chunk_size <= 0 or not flush_interval_s > 0:
+            raise ValueError("chunk_size and flush_interval_s must be positive")
+        self.path = Path(path)
+        self._closed = True  # until the file is open, close() has nothing to do
+        self._file = _DirectFile(self.path)
+        self._writer = Writer(self._file, chunk_size=_NEVER, compression=_COMPRESSION[compression])
+        self._chunk_size = int(chunk_size)
+        self._interval_ns = max(1, round(flush_interval_s * 1e9))
+        self._fsync = fsync
+        self._chunk_bytes = 0
+        self._chunk_t0: int | None = None  # log time of the open chunk's first message
+        self._busy = False
+        self._close_requested = False
+        # (class, topic) -> (channel id, serialiser); topic -> channel id for dicts and locations
+        self._dc_channels: dict[tuple[type, str | None], tuple[int, Any, Any]] = {}
+        self._named_channels: dict[str, int] = {}
+        self._schemas: dict[str, tuple[int, bytes]] = {}  # schema name -> (id, schema bytes)
+        self._channel_topic: dict[int, str] = {}
+        self._channel_schema: dict[int, str] = {}
+        self._topic_channel: dict[str, int] = {}
+        self._seq: dict[int, int] = {}
+        self._closed = False
+        version_ = _companion_version()
+        self._writer.start(profile="", library=f"companion/{version_}; {LIBRARY_IDENTIFIER}")
+        self.add_metadata("companion", {"version": version_, "mcap": _dist_version("mcap")})
+
+    # ------------------------------------------------------------------ writing
+
+    def write(self, item: Any, topic: str | None = None) -> None:
+        """Record a frozen dataclass (an event, a predictor output, filter state, ...).
+
+        ``topic`` defaults to the class's ``topic`` attribute; the log time is ``item.t_s``.
+        """
+        entry = self._dc_channels.get((type(item), topic))
+        if entry is None:
+            entry = self._register_dataclass(type(item), topic)
+        channel_id, fast, to_json = entry
+        t_ns = _time_ns(item.t_s)
+        if fast is not None:
+            # Field values straight to json: same bytes as to_dict() (tuples -> arrays, IntEnum -> int),
+            # about twice as fast. NaN/inf or a value json cannot take -> the exact to_dict() path.
+            try:
+                data = json.dumps(dict(zip(fast[0], fast[1](item))), separators=(",", ":"), allow_nan=False).encode()
+            except (ValueError, TypeError):
+                data = _dumps(to_json(item))
+        else:
+            data = _dumps(to_json(item))
+        self._add(channel_id, t_ns, data)
+
+    def write_dict(self, topic: str, schema_name: str, json_schema: Mapping, payload: Mapping, t_s: float) -> None:
+        """Record a plain dict on ``topic`` under an explicitly given JSON schema (registered once per topic)."""
+        channel_id = self._named_channels.get(topic)
+        if channel_id is None or self._channel_schema[channel_id] != schema_name:
+            channel_id = self._register_named(topic, schema_name, json_schema)
+        self._add(channel_id, _time_ns(t_s), _dumps(payload))
+
+    def write_location(
+        self,
+        topic: str,
+        t_s: float,
+        lat_deg: float,
+        lon_deg: float,
+        alt_m: float,
+        cov_enu_m2: Any = None,
+        frame_id: str = "gnss",
+        *,
+        cov_type: int | None = None,
+        color_rgba: Sequence[float] | None = None,
+        heading_rad: float | None = None,
+    ) -> None:
+        """Record a position as ``foxglove.LocationFix`` (one topic per track, e.g. "/map/fused").
+
+        ``cov_enu_m2`` is the 3x3 position covariance in m^2 in the local East-North-Up frame (as in ROS
+        NavSatFix; note: ENU, not the NED used elsewhere in companion), nested rows or 9 numbers
+        row-major, or None when unknown. ``cov_type`` defaults to DIAGONAL_KNOWN (2) for a diagonal
+        matrix, KNOWN (3) otherwise, UNKNOWN (0) for None. ``color_rgba`` (0..1) sets the track colour;
+        ``heading_rad`` is clockwise from north. Non-finite lat/lon/alt raise ValueError.
+        """
+        if not (math.isfinite(lat_deg) and math.isfinite(lon_deg) and math.isfinite(alt_m)):
+            raise ValueError(f"{topic}: non-finite position lat={lat_deg} lon={lon_deg} alt={alt_m}")
+        t_ns = _time_ns(t_s)
+        if cov_enu_m2 is None:
+            cov = [0.0] * 9
+            ctype = COV_UNKNOWN
+        else:
+            cov = _flatten_cov(cov_enu_m2)
+            ctype = COV_DIAGONAL_KNOWN if all(cov[i] == 0.0 for i in (1, 2, 3, 5, 6, 7)) else COV_KNOWN
+        if cov_type is not None:
+            if cov_type not in (0, 1, 2, 3):
+                raise ValueError(f"cov_type must be 0..3, not {cov_type!r}")
+            ctype = int(cov_type)
+        msg: dict[str, Any] = {
+            "timestamp": {"sec": t_ns // 1_000_000_000, "nsec": t_ns % 1_000_000_000},
+            "frame_id": frame_id,
+            "latitude": float(lat_deg),
+            "longitude": float(lon_deg),
+            "altitude": float(alt_m),
+            "position_covariance": cov,
+            "position_covariance_type": ctype,
+        }
+        if heading_rad is not None and math.isfinite(heading_rad):
+            msg["heading"] = float(heading_rad)
+        if color_rgba is not None:
+            r, g, b, a = (float(c) for c in color_rgba)
+            msg["color"] = {"r": r, "g": g, "b": b, "a": a}
+        channel_id = self._named_channels.get(topic)
+        if channel_id is None or self._channel_schema[channel_id] != LOCATION_FIX_SCHEMA_NAME:
+            channel_id = self._register_named(topic, LOCATION_FIX_SCHEMA_NAME, LOCATION_FIX_SCHEMA)
+        self._add(channel_id, t_ns, _dumps(msg))
+
+    def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
+        """Add a metadata record (source, configuration, ...). Keys and values must be str."""
+        self._check_open()
+        bad = [(k, v) for k, v in data.items() if not isinstance(k, str) or not isinstance(v, str)]
+        if bad:
+            raise TypeError(f"metadata {name!r}: keys and values must be str, got {bad[:3]!r}")
+        self._writer.add_metadata(name, dict(data))
+
+    def flush(self) -> None:
+        """Close the chunk in progress now, so everything written so far is in the file."""
+        self._check_open()
+        self._close_chunk()
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Messages written so far per topic."""
+        return {self._channel_topic[c]: n for c, n in self._seq.items()}
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    # ------------------------------------------------------------------ finishing
+
+    def close(self) -> None:
+        """Finalise the file (summary section, footer); safe to call more than once.
+
+        Called while a write is in progress (a signal handler interrupting ``write``), it is deferred
+        until that write has finished so the chunk in progress is not corrupted.
+        """
+        if self._closed:
+            return
+        if self._busy:
+            self._close_requested = True
+            return
+        self._closed = True
+        try:
+            self._writer.finish()
+            if self._fsync:
+                self._file.fsync()
+        finally:
+            self._file.close()
+
+    def __enter__(self) -> Recorder:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ internals
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RecordError(f"{self.path}: the recorder is closed")
+
+    def _add(self, channel_id: int, t_ns: int, data: bytes) -> None:
+        if self._closed:
+            raise RecordError(f"{self.path}: the recorder is closed")
+        self._busy = True
+        try:
+            seq = self._seq[channel_id]
+            self._seq[channel_id] = seq + 1
+            self._writer.add_message(channel_id, t_ns, data, t_ns, seq & 0xFFFFFFFF)
+            self._chunk_bytes += _MESSAGE_OVERHEAD + len(data)
+            t0 = self._chunk_t0
+            if t0 is None:
+                self._chunk_t0 = t0 = t_ns
+            if self._chunk_bytes >= self._chunk_size or abs(t_ns - t0) >= self._interval_ns:
+                self._close_chunk()
+        finally:
+            self._busy = False
+        if self._close_requested:
+            self.close()
+
+    def _close_chunk(self) -> None:
+        self._writer.flush()  # finalises the chunk (if it has messages) and writes it and its indexes
+        self._chunk_bytes = 0
+        self._chunk_t0 = None
+        if self._fsync:
+            self._file.fsync()
+
+    def _register_schema(self, name: str, schema: Mapping) -> int:
+        data = json.dumps(schema, separators=(",", ":"), sort_keys=False).encode()
+        known = self._schemas.get(name)
+        if known is not None:
+            if known[1] != data:
+                raise ValueError(f"schema {name!r} is already registered with a different definition")
+            return known[0]
+        schema_id = self._writer.register_schema(name, JSON_SCHEMA_ENCODING, data)
+        self._schemas[name] = (schema_id, data)
+        self._chunk_bytes += len(data) + len(name) + 32
+        return schema_id
+
+    def _register_channel(self, topic: str, schema_name_: str, schema_id: int) -> int:
+        if not isinstance(topic, str) or not topic:
+            raise ValueError(f"topic must be a non-empty string, not {topic!r}")
+        existing = self._topic_channel.get(topic)
+        if existing is not None:
+            raise ValueError(
+                f"topic {topic!r} already carries {self._channel_schema[existing]!r}; "
+                f"cannot also record {schema_name_!r} on it"
+            )
+        channel_id = self._writer.register_channel(topic, JSON_MESSAGE_ENCODING, schema_id)
+        self._chunk_bytes += len(topic) + 32
+        self._channel_topic[channel_id] = topic
+        self._channel_schema[channel_id] = schema_name_
+        self._topic_channel[topic] = channel_id
+        self._seq[channel_id] = 0
+        return channel_id
+
+    def _register_dataclass(self, cls: type, topic: str | None) -> tuple[int, Any, Any]:
+        self._check_open()
+        schema = dataclass_schema(cls)  # raises TypeError for non-dataclasses
+        if "t_s" not in schema["properties"]:
+            raise TypeError(f"{cls.__qualname__} has no t_s field: cannot give its messages a log time")
+        resolved = topic if topic is not None else getattr(cls, "topic", None)
+        if not isinstance(resolved, str):
+            raise ValueError(f"{cls.__qualname__} has no `topic` class attribute: pass topic=...")
+        name = schema_name(cls)
+        existing = self._topic_channel.get(resolved)
+        if existing is not None and self._channel_schema[existing] == name:
+            channel_id = existing  # same class reached with topic=None and with its explicit topic
+        else:
+            channel_id = self._register_channel(resolved, name, self._register_schema(name, schema))
+        to_dict = getattr(cls, "to_dict", None)
+        names = tuple(schema["properties"])
+        generic = to_dict is None or to_dict is Event.to_dict  # a class's own to_dict() is always honoured
+        fast = (names, operator.attrgetter(*names) if len(names) > 1 else _one(names[0])) if generic else None
+        entry = (channel_id, fast, to_dict if callable(to_dict) else _plain)
+        self._dc_channels[(cls, topic)] = entry
+        return entry
+
+    def _register_named(self, topic: str, name: str, json_schema: Mapping) -> int:
+        self._check_open()
+        if not isinstance(json_schema, Mapping):
+            raise TypeError(f"json_schema for {topic!r} must be a dict, not {type(json_schema).__name__}")
+        channel_id = self._register_channel(topic, name, self._register_schema(name, json_schema))
+        self._named_channels[topic] = channel_id
+        return channel_id
+
+
+def _one(name: str):
+    get = operator.attrgetter(name)
+    return lambda o: (get(o),)
+
+
+def _flatten_cov(cov: Any) -> list[float]:
+    rows = cov.tolist() if hasattr(cov, "tolist") else cov
+    flat: list[float] = []
+    for r in rows:
+        if isinstance(r, (list, tuple)):
+            flat.extend(float(x) for x in r)
+        else:
+            flat.append(float(r))
+    if len(flat) != 9:
+        raise ValueError(f"cov_enu_m2 must be 3x3 (or 9 numbers), got {len(flat)} numbers")
+    if not all(math.isfinite(x) for x in flat):
+        raise ValueError("cov_enu_m2 has non-finite entries")
+    return flat
+
+
+def _companion_version() -> str:
+    # companion.__version__; the distribution's version if the package was imported as a bare namespace
+    # (a stale editable install run from outside the checkout does that).
+    return getattr(companion, "__version__", None) or _dist_version("companion")
+
+
+def _dist_version(dist: str) -> str:
+    try:
+        return version(dist)
+    except PackageNotFoundError:
+        return "unknown"
