@@ -267,6 +267,7 @@ def _from_stream(path: Path, size: int, note: str) -> Summary:
                 finalised = True
             elif isinstance(rec, tuple) and rec and rec[0] is _END:
                 _, readable, reason = rec
+    finalised = finalised and not reason  # footer and closing magic read without error
     if finalised:
         readable = size
     if not finalised:
