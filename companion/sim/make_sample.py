@@ -1,0 +1,80 @@
+"""Regenerate the shipped sample log: ``python -m companion.sim.make_sample [--out logs/sample_flight.tlog]``.
+
+Deterministic (fixed seed, fixed boot epoch, no wall clock): the output is byte-for-byte the same on
+every run with the same numpy/pymavlink.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from companion.sim.flight import SAMPLE_OUTAGE_S, SAMPLE_SEED, SimulatedFlight, sample_flight
+from companion.sim.mavlink_out import pack_stream, telemetry_messages
+from companion.sim.tlog import tlog_bytes
+
+REPO = Path(__file__).resolve().parents[2]
+DEFAULT_OUT = REPO / "logs" / "sample_flight.tlog"
+TRUTH_RATE_HZ = 10.0
+
+
+def flight_tlog_bytes(flight: SimulatedFlight) -> tuple[bytes, Counter]:
+    msgs = telemetry_messages(flight)
+    counts = Counter(o.msg.get_type() for o in msgs)
+    return tlog_bytes(pack_stream(msgs, flight.config.boot_epoch_us)), counts
+
+
+def truth_csv_text(flight: SimulatedFlight, rate_hz: float = TRUTH_RATE_HZ) -> str:
+    """Truth at ``rate_hz``: time, geodetic position, NED position and velocity, attitude."""
+    tr = flight.profile.sample_rate(rate_hz)
+    import io
+
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(
+        ["t_s", "lat_deg", "lon_deg", "alt_msl_m", "n_m", "e_m", "d_m", "vn_mps", "ve_mps", "vd_mps",
+         "roll_rad", "pitch_rad", "yaw_rad"]
+    )
+    for k in range(len(tr)):
+        w.writerow(
+            [f"{tr.t_s[k]:.1f}", f"{tr.lat_deg[k]:.9f}", f"{tr.lon_deg[k]:.9f}", f"{tr.alt_msl_m[k]:.4f}"]
+            + [f"{v:.4f}" for v in tr.pos_ned_m[k]]
+            + [f"{v:.4f}" for v in tr.vel_ned_mps[k]]
+            + [f"{v:.6f}" for v in tr.euler_rad[k]]
+        )
+    return buf.getvalue()
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output .tlog (default: %(default)s)")
+    ap.add_argument(
+        "--truth", type=Path, default=None, help="truth CSV (default: <out stem>_truth.csv beside the tlog)"
+    )
+    args = ap.parse_args(argv)
+    flight = sample_flight()
+    data, counts = flight_tlog_bytes(flight)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_bytes(data)
+    truth = args.truth or args.out.with_name(args.out.stem + "_truth.csv")
+    truth.write_text(truth_csv_text(flight))
+    print(f"wrote {args.out} ({len(data)} bytes, {sum(counts.values())} messages, {flight.duration_s:.2f} s)")
+    for name, n in sorted(counts.items()):
+        print(f"  {name:12s} {n:6d}")
+    print(f"wrote {truth} ({truth.stat().st_size} bytes)")
+    print(f"seed {SAMPLE_SEED}; GNSS outage {SAMPLE_OUTAGE_S[0]:.1f}-{SAMPLE_OUTAGE_S[1]:.1f} s; armed "
+          f"{flight.armed_s[0]:.2f}-{flight.armed_s[1]:.2f} s")
+    np.set_printoptions(precision=4, suppress=True)
+    print(f"IMU biases: accel {flight.imu.accel_bias_frd_mps2} m/s^2, gyro {flight.imu.gyro_bias_frd_radps} rad/s")
+    if flight.imu2 is not None:
+        print(f"IMU2 biases: accel {flight.imu2.accel_bias_frd_mps2} m/s^2, gyro {flight.imu2.gyro_bias_frd_radps} rad/s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,565 @@
+"""Smooth, physically consistent multirotor trajectories from a list of legs. Pure numpy.
+
+Kinematics are driven by three scalar channels of time:
+
+* ``speed``: horizontal ground speed V (m/s),
+* ``turn``: rate of change of the heading psi (rad/s); psi = psi0 + integral(turn),
+* ``climb``: vertical velocity v_d (m/s, NED down positive).
+
+Each channel holds its value or changes it with a quintic minimum-jerk blend
+s(tau) = 10 tau^3 - 15 tau^4 + 6 tau^5, whose first and second derivatives vanish at both ends,
+so every channel is C2 and velocity, acceleration and jerk are continuous everywhere. Horizontal
+velocity is V (cos psi, sin psi); acceleration and jerk follow analytically. Horizontal position is
+integrated on a 2 kHz grid with the fourth-order Hermite rule and interpolated with cubic Hermite
+(error far below a millimetre); vertical position is exact.
+
+Attitude is that of an ideal multirotor: the thrust axis (body -z) is aligned with the specific force
+f = a - g, and the yaw equals the heading channel psi (the nose points along track; with V = 0 a
+``Yaw`` leg turns the vehicle on the spot). The accelerometer therefore reads (0, 0, -|f|) in body
+FRD (no aerodynamic drag is modelled). Body rates come from the analytic derivative of the Euler
+angles (ZYX convention, rotation body FRD -> NED: C_nb = Rz(yaw) Ry(pitch) Rx(roll)).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from companion.geodesy import LocalFrame
+
+GRAVITY_MPS2 = 9.80665
+G_NED_MPS2 = np.array([0.0, 0.0, GRAVITY_MPS2])
+_INTERNAL_RATE_HZ = 2000.0
+
+
+# ---------------------------------------------------------------------------------------------
+# quintic blend
+def _s(tau):
+    return tau**3 * (10.0 + tau * (-15.0 + 6.0 * tau))
+
+
+def _ds(tau):
+    return 30.0 * tau**2 * (1.0 - tau) ** 2
+
+
+def _dds(tau):
+    return 60.0 * tau * (1.0 - tau) * (1.0 - 2.0 * tau)
+
+
+def _int_s(tau):
+    """Integral of s from 0 to tau."""
+    return tau**4 * (2.5 + tau * (-3.0 + tau))
+
+
+#: peak of ds/dtau (at tau = 1/2): a blend of a quantity by D over T has peak rate 1.875 D / T.
+BLEND_PEAK = 1.875
+
+
+class Channel:
+    """A scalar, C2 function of time: holds and quintic blends, constant before/after its pieces."""
+
+    def __init__(self, initial: float = 0.0) -> None:
+        self.initial = float(initial)
+        self._t0: list[float] = []
+        self._t1: list[float] = []
+        self._v0: list[float] = []
+        self._v1: list[float] = []
+
+    @property
+    def end_value(self) -> float:
+        return self._v1[-1] if self._v1 else self.initial
+
+    @property
+    def end_time(self) -> float:
+        return self._t1[-1] if self._t1 else -math.inf
+
+    def blend(self, t0: float, duration: float, target: float) -> None:
+        if t0 < self.end_time - 1e-9:
+            raise ValueError(f"channel change at t={t0:.3f} s overlaps the previous one (ends {self.end_time:.3f} s)")
+        if duration <= 0.0:
+            raise ValueError("blend duration must be positive")
+        self._t0.append(float(t0))
+        self._t1.append(float(t0 + duration))
+        self._v0.append(self.end_value)
+        self._v1.append(float(target))
+
+    def evaluate(self, t) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Value, first and second derivative, and the integral from ``t_origin`` = 0, at times ``t``."""
+        t = np.asarray(t, dtype=float)
+        val = np.full(t.shape, self.initial)
+        d1 = np.zeros(t.shape)
+        d2 = np.zeros(t.shape)
+        integ = self.initial * t
+        # Each blend adds (v1 - v0) * s((t - t0)/T) on top of the previous level.
+        for t0, t1, v0, v1 in zip(self._t0, self._t1, self._v0, self._v1):
+            dv, dur = v1 - v0, t1 - t0
+            tau = np.clip((t - t0) / dur, 0.0, 1.0)
+            inside = (t > t0) & (t < t1)
+            val = val + dv * _s(tau)
+            d1 = d1 + np.where(inside, dv * _ds(tau) / dur, 0.0)
+            d2 = d2 + np.where(inside, dv * _dds(tau) / dur**2, 0.0)
+            # integral of dv*s over [t0, t]: dur*int_s(tau) inside, then dv*(t - t1 + dur/2) after
+            after = np.maximum(t - t1, 0.0)
+            integ = integ + dv * np.where(t <= t0, 0.0, dur * _int_s(tau) + after)
+        return val, d1, d2, integ
+
+
+# ---------------------------------------------------------------------------------------------
+# legs
+@dataclass(frozen=True)
+class Hold:
+    """Keep the current velocity (hover if stopped, straight flight if moving) for ``duration_s``."""
+
+    duration_s: float
+    mode: str | None = None
+
+
+@dataclass(frozen=True)
+class Straight:
+    """Fly straight at the current (non-zero) speed for ``distance_m``."""
+
+    distance_m: float
+    mode: str | None = None
+
+
+@dataclass(frozen=True)
+class Speed:
+    """Change horizontal speed to ``speed_mps`` with peak acceleration ``max_accel_mps2``."""
+
+    speed_mps: float
+    max_accel_mps2: float = 2.0
+    mode: str | None = None
+
+
+@dataclass(frozen=True)
+class Turn:
+    """Coordinated turn by ``angle_deg`` (positive = right, clockwise seen from above) at radius ``radius_m``.
+
+    The turn rate V/R is blended in and out over ``blend_s`` each, so the bank angle changes smoothly.
+    """
+
+    angle_deg: float
+    radius_m: float
+    blend_s: float = 2.0
+    mode: str | None = None
+
+
+@dataclass(frozen=True)
+class Yaw:
+    """Turn the heading (and the nose) by ``angle_deg`` at up to ``rate_dps``; used when hovering."""
+
+    angle_deg: float
+    rate_dps: float = 30.0
+    blend_s: float = 1.5
+    mode: str | None = None
+
+
+@dataclass(frozen=True)
+class Climb:
+    """Change height by ``delta_up_m`` (negative descends) at up to ``rate_mps``.
+
+    With ``wait=False`` the climb runs alongside the following legs (e.g. climb while flying straight).
+    """
+
+    delta_up_m: float
+    rate_mps: float = 2.0
+    blend_s: float = 1.5
+    wait: bool = True
+    mode: str | None = None
+
+
+@dataclass(frozen=True)
+class Land:
+    """Descend to the starting height (ground) at ``rate_mps``, slowing to ``final_rate_mps`` for the last ``flare_m``."""
+
+    rate_mps: float = 1.5
+    final_rate_mps: float = 0.5
+    flare_m: float = 3.0
+    mode: str | None = None
+
+
+Leg = Hold | Straight | Speed | Turn | Yaw | Climb | Land
+
+
+def _rate_profile(delta: float, max_rate: float, blend_s: float) -> tuple[float, float, float]:
+    """(signed rate, blend time, hold time) to change a quantity by ``delta`` with blend-hold-blend."""
+    if max_rate <= 0.0:
+        raise ValueError("rate must be positive")
+    rate = math.copysign(max_rate, delta)
+    # delta = rate * (blend + hold); shrink the blend if the change is too small for it.
+    total = abs(delta) / max_rate
+    blend = min(blend_s, total)
+    return rate, blend, total - blend
+
+
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class Trajectory:
+    """Samples of a trajectory. Arrays have one row per time in ``t_s``."""
+
+    t_s: np.ndarray
+    pos_ned_m: np.ndarray
+    vel_ned_mps: np.ndarray
+    acc_ned_mps2: np.ndarray
+    jerk_ned_mps3: np.ndarray
+    euler_rad: np.ndarray  # roll, pitch, yaw (ZYX)
+    euler_rate_radps: np.ndarray
+    rate_frd_radps: np.ndarray
+    specific_force_frd_mps2: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    alt_msl_m: np.ndarray
+    mode: list[str | None] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+    @property
+    def c_nb(self) -> np.ndarray:
+        """Rotation matrices body FRD -> NED, shape (N, 3, 3)."""
+        return dcm_from_euler(self.euler_rad)
+
+    def slice(self, sel) -> Trajectory:
+        kw = {}
+        for name in self.__dataclass_fields__:
+            v = getattr(self, name)
+            if name == "mode":
+                kw[name] = list(np.asarray(v, dtype=object)[sel]) if v else []
+            else:
+                kw[name] = v[sel]
+        return Trajectory(**kw)
+
+
+def dcm_from_euler(euler_rad) -> np.ndarray:
+    """C_nb (body FRD -> NED) from ZYX Euler angles (roll, pitch, yaw); shape (..., 3, 3)."""
+    e = np.asarray(euler_rad, dtype=float)
+    cr, sr = np.cos(e[..., 0]), np.sin(e[..., 0])
+    cp, sp = np.cos(e[..., 1]), np.sin(e[..., 1])
+    cy, sy = np.cos(e[..., 2]), np.sin(e[..., 2])
+    c = np.empty(e.shape[:-1] + (3, 3))
+    c[..., 0, 0] = cp * cy
+    c[..., 0, 1] = sr * sp * cy - cr * sy
+    c[..., 0, 2] = cr * sp * cy + sr * sy
+    c[..., 1, 0] = cp * sy
+    c[..., 1, 1] = sr * sp * sy + cr * cy
+    c[..., 1, 2] = cr * sp * sy - sr * cy
+    c[..., 2, 0] = -sp
+    c[..., 2, 1] = sr * cp
+    c[..., 2, 2] = cr * cp
+    return c
+
+
+def wrap_pi(a):
+    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+class FlightProfile:
+    """A trajectory defined by legs flown one after another from rest at ``start_ned_m``.
+
+    ``sample(t_s)`` evaluates it at any times (position from a pre-integrated 2 kHz grid, everything
+    else analytic); ``sample_rate(rate_hz)`` samples it uniformly from 0 to ``duration_s``.
+    """
+
+    def __init__(
+        self,
+        legs: Sequence[Leg],
+        frame: LocalFrame,
+        *,
+        start_ned_m: Sequence[float] = (0.0, 0.0, 0.0),
+        start_heading_deg: float = 0.0,
+    ) -> None:
+        self.frame = frame
+        self.legs = list(legs)
+        self.start_ned_m = np.asarray(start_ned_m, dtype=float)
+        self.start_heading_rad = math.radians(start_heading_deg)
+        self.speed = Channel(0.0)
+        self.turn = Channel(0.0)
+        self.climb = Channel(0.0)
+        #: (start time, leg) for every leg, and the ArduPilot-like mode label schedule
+        self.leg_times: list[tuple[float, float, Leg]] = []
+        t = 0.0
+        height_up = 0.0  # exact height above start, from the climb channel
+        for leg in self.legs:
+            t0 = t
+            if isinstance(leg, Hold):
+                t += leg.duration_s
+            elif isinstance(leg, Straight):
+                v = self.speed.end_value
+                if v <= 0.0:
+                    raise ValueError("Straight leg flown at zero speed; add a Speed leg before it")
+                t = max(t, self.speed.end_time) + leg.distance_m / v
+            elif isinstance(leg, Speed):
+                dv = leg.speed_mps - self.speed.end_value
+                if leg.speed_mps < 0:
+                    raise ValueError("speed must be >= 0")
+                if dv != 0.0:
+                    dur = BLEND_PEAK * abs(dv) / leg.max_accel_mps2
+                    self.speed.blend(t, dur, leg.speed_mps)
+                    t += dur
+            elif isinstance(leg, (Turn, Yaw)):
+                if isinstance(leg, Turn):
+                    v = self.speed.end_value
+                    if v <= 0.0:
+                        raise ValueError("Turn leg flown at zero speed; use Yaw to turn on the spot")
+                    max_rate = v / leg.radius_m
+                else:
+                    max_rate = math.radians(leg.rate_dps)
+                rate, blend, hold = _rate_profile(math.radians(leg.angle_deg), max_rate, leg.blend_s)
+                self.turn.blend(t, blend, rate)
+                self.turn.blend(t + blend + hold, blend, 0.0)
+                t += 2 * blend + hold
+            elif isinstance(leg, (Climb, Land)):
+                if isinstance(leg, Climb):
+                    steps = [(leg.delta_up_m, leg.rate_mps, leg.blend_s)]
+                else:
+                    if height_up <= 0.0:
+                        raise ValueError("Land leg while already on the ground")
+                    flare = min(leg.flare_m, height_up)
+                    steps = [(-(height_up - flare), leg.rate_mps, 1.5), (-flare, leg.final_rate_mps, 1.0)]
+                tc = max(t, self.climb.end_time)
+                for delta, rate_mps, blend_s in steps:
+                    if delta == 0.0:
+                        continue
+                    rate, blend, hold = _rate_profile(delta, rate_mps, blend_s)
+                    self.climb.blend(tc, blend, -rate)  # down positive
+                    self.climb.blend(tc + blend + hold, blend, 0.0)
+                    tc += 2 * blend + hold
+                    height_up += delta
+                if getattr(leg, "wait", True):
+                    t = tc
+            else:
+                raise TypeError(f"unknown leg {leg!r}")
+            self.leg_times.append((t0, t, leg))
+        self.duration_s = max(t, self.speed.end_time, self.turn.end_time, self.climb.end_time)
+        if self.speed.end_value != 0.0:
+            raise ValueError("flight plan must end stopped (add Speed(0))")
+        self._integrate()
+
+    # -- internals ------------------------------------------------------------------------------
+    def _channels(self, t):
+        v, dv, ddv, _ = self.speed.evaluate(t)
+        w, dw, ddw, iw = self.turn.evaluate(t)
+        vd, dvd, ddvd, ivd = self.climb.evaluate(t)
+        psi = self.start_heading_rad + iw
+        return v, dv, ddv, w, dw, psi, vd, dvd, ddvd, ivd
+
+    def _kinematics(self, t):
+        v, dv, ddv, w, dw, psi, vd, dvd, ddvd, ivd = self._channels(t)
+        c, s = np.cos(psi), np.sin(psi)
+        vel = np.stack([v * c, v * s, vd], axis=-1)
+        # a = V' u + V w u_perp ; u = (c, s), u_perp = (-s, c)
+        a_t, a_n = dv, v * w
+        acc = np.stack([a_t * c - a_n * s, a_t * s + a_n * c, dvd], axis=-1)
+        # j = (V'' - V w^2) u + (2 V' w + V w') u_perp
+        j_t, j_n = ddv - v * w * w, 2.0 * dv * w + v * dw
+        jerk = np.stack([j_t * c - j_n * s, j_t * s + j_n * c, ddvd], axis=-1)
+        return vel, acc, jerk, psi, w, ivd
+
+    def _integrate(self) -> None:
+        n = int(math.ceil(self.duration_s * _INTERNAL_RATE_HZ)) + 1
+        self._grid_dt = 1.0 / _INTERNAL_RATE_HZ
+        tg = np.arange(n) * self._grid_dt
+        vel, acc, _, _, _, _ = self._kinematics(tg)
+        h = self._grid_dt
+        steps = h / 2.0 * (vel[:-1, :2] + vel[1:, :2]) + h * h / 12.0 * (acc[:-1, :2] - acc[1:, :2])
+        pos = np.zeros((n, 2))
+        pos[1:] = np.cumsum(steps, axis=0)
+        self._grid_pos = pos
+
+    def _horizontal_position(self, t, vel, acc) -> np.ndarray:
+        """Cubic Hermite interpolation of the integrated grid, with the analytic velocity at the nodes."""
+        h = self._grid_dt
+        tg = np.clip(t, 0.0, (len(self._grid_pos) - 1) * h)
+        k = np.minimum((tg / h).astype(np.int64), len(self._grid_pos) - 2)
+        u = (tg - k * h) / h
+        t0, t1 = k * h, (k + 1) * h
+        v0, _, _, _, _, _ = self._kinematics(t0)
+        v1, _, _, _, _, _ = self._kinematics(t1)
+        p0, p1 = self._grid_pos[k], self._grid_pos[k + 1]
+        u = u[:, None]
+        h00 = 2 * u**3 - 3 * u**2 + 1
+        h10 = u**3 - 2 * u**2 + u
+        h01 = -2 * u**3 + 3 * u**2
+        h11 = u**3 - u**2
+        pos = h00 * p0 + h10 * h * v0[:, :2] + h01 * p1 + h11 * h * v1[:, :2]
+        # outside [0, duration] the vehicle is at rest (or moving at constant velocity)
+        pos = pos + (t - tg)[:, None] * vel[:, :2]
+        return pos
+
+    # -- public ---------------------------------------------------------------------------------
+    def mode_at(self, t_s: float) -> str | None:
+        """The mode label of the most recent leg (with a label) that started at or before ``t_s``."""
+        mode = None
+        for t0, _, leg in self.leg_times:
+            if t0 > t_s:
+                break
+            if leg.mode is not None:
+                mode = leg.mode
+        return mode
+
+    def modes_at(self, t_s) -> list[str | None]:
+        starts = [t0 for t0, _, leg in self.leg_times if leg.mode is not None]
+        labels = [None] + [leg.mode for _, _, leg in self.leg_times if leg.mode is not None]
+        idx = np.searchsorted(np.asarray(starts), np.asarray(t_s), side="right")
+        return [labels[i] for i in idx]
+
+    def sample(self, t_s) -> Trajectory:
+        t = np.atleast_1d(np.asarray(t_s, dtype=float))
+        vel, acc, jerk, psi, w, ivd = self._kinematics(t)
+        pos = np.empty((len(t), 3))
+        pos[:, :2] = self._horizontal_position(t, vel, acc)
+        pos[:, 2] = ivd
+        pos += self.start_ned_m
+        euler, euler_rate, rate_frd, f_frd = attitude_from_motion(acc, jerk, psi, w)
+        lat, lon, alt = self.frame.to_geodetic(pos)
+        return Trajectory(
+            t_s=t,
+            pos_ned_m=pos,
+            vel_ned_mps=vel,
+            acc_ned_mps2=acc,
+            jerk_ned_mps3=jerk,
+            euler_rad=euler,
+            euler_rate_radps=euler_rate,
+            rate_frd_radps=rate_frd,
+            specific_force_frd_mps2=f_frd,
+            lat_deg=np.asarray(lat),
+            lon_deg=np.asarray(lon),
+            alt_msl_m=np.asarray(alt),
+            mode=self.modes_at(t),
+        )
+
+    def sample_rate(self, rate_hz: float, t_end_s: float | None = None) -> Trajectory:
+        """Uniform samples k / rate_hz for k = 0 .. floor(t_end * rate_hz) (t_end defaults to the duration)."""
+        end = self.duration_s if t_end_s is None else t_end_s
+        n = int(math.floor(end * rate_hz + 1e-9)) + 1
+        return self.sample(np.arange(n) / rate_hz)
+
+
+def attitude_from_motion(acc_ned, jerk_ned, yaw, yaw_rate):
+    """Multirotor attitude and body rates from acceleration, jerk, yaw and yaw rate (all NED).
+
+    Body z (down) is aligned with -f / |f|, f = a - g. Returns (euler (N,3), euler rates (N,3),
+    body rates FRD (N,3), specific force FRD (N,3)).
+    """
+    f = np.asarray(acc_ned) - G_NED_MPS2
+    fd = np.asarray(jerk_ned)
+    fn = np.linalg.norm(f, axis=-1)
+    if np.any(fn < 0.5):
+        raise ValueError("commanded acceleration leaves almost no thrust (free fall); fly gentler legs")
+    z = -f / fn[:, None]
+    zd = -(fd / fn[:, None] - f * (np.sum(f * fd, axis=-1) / fn**3)[:, None])
+    c, s = np.cos(yaw), np.sin(yaw)
+    # z in the yaw-rotated frame: q = Rz(-yaw) z = (sin(pitch) cos(roll), -sin(roll), cos(pitch) cos(roll))
+    qx = c * z[:, 0] + s * z[:, 1]
+    qy = -s * z[:, 0] + c * z[:, 1]
+    qz = z[:, 2]
+    dqx = c * zd[:, 0] + s * zd[:, 1] + yaw_rate * (-s * z[:, 0] + c * z[:, 1])
+    dqy = -s * zd[:, 0] + c * zd[:, 1] + yaw_rate * (-c * z[:, 0] - s * z[:, 1])
+    dqz = zd[:, 2]
+    h2 = qx * qx + qz * qz
+    h = np.sqrt(h2)
+    pitch = np.arctan2(qx, qz)
+    roll = np.arctan2(-qy, h)
+    pitch_d = (qz * dqx - qx * dqz) / h2
+    h_d = (qx * dqx + qz * dqz) / h
+    roll_d = (-h * dqy + qy * h_d) / (qy * qy + h2)
+    yaw_w = wrap_pi(yaw)
+    sr, cr = np.sin(roll), np.cos(roll)
+    sp, cp = np.sin(pitch), np.cos(pitch)
+    p = roll_d - yaw_rate * sp
+    q = pitch_d * cr + yaw_rate * sr * cp
+    r = -pitch_d * sr + yaw_rate * cr * cp
+    euler = np.stack([roll, pitch, yaw_w], axis=-1)
+    euler_rate = np.stack([roll_d, pitch_d, yaw_rate * np.ones_like(roll)], axis=-1)
+    rate = np.stack([p, q, r], axis=-1)
+    f_frd = np.einsum("nji,nj->ni", dcm_from_euler(euler), f)  # C_bn f = C_nb^T f
+    return euler, euler_rate, rate, f_frd
+
+
+# ---------------------------------------------------------------------------------------------
+def legs_through_waypoints(
+    waypoints_ne_m: Sequence[Sequence[float]],
+    start_ne_m: Sequence[float],
+    start_heading_deg: float,
+    speed_mps: float,
+    turn_radius_m: float,
+    *,
+    max_accel_mps2: float = 2.0,
+    turn_blend_s: float = 2.0,
+    mode: str | None = None,
+) -> list[Leg]:
+    """Legs that fly from ``start_ne_m`` (at rest, nose at ``start_heading_deg``) through horizontal waypoints.
+
+    The vehicle first yaws on the spot to face the first waypoint, accelerates to ``speed_mps``, flies
+    by the intermediate waypoints with coordinated turns of ``turn_radius_m`` (the path cuts the corner
+    like ArduPilot's waypoint navigation), and stops exactly at the last waypoint. Altitude is unchanged;
+    combine with ``Climb(..., wait=False)`` for climbs along the way.
+    """
+    pts = [np.asarray(start_ne_m, dtype=float)] + [np.asarray(p, dtype=float) for p in waypoints_ne_m]
+    if len(pts) < 2:
+        raise ValueError("need at least one waypoint")
+    dirs, lens = [], []
+    for a, b in zip(pts[:-1], pts[1:]):
+        d = b - a
+        n = float(np.hypot(*d))
+        if n < 1e-6:
+            raise ValueError("consecutive waypoints coincide")
+        dirs.append(math.atan2(d[1], d[0]))
+        lens.append(n)
+    legs: list[Leg] = []
+    dyaw = math.degrees(float(wrap_pi(dirs[0] - math.radians(start_heading_deg))))
+    if abs(dyaw) > 0.01:
+        legs.append(Yaw(dyaw, mode=mode))
+        mode = None
+    accel_dist = speed_mps * BLEND_PEAK * speed_mps / max_accel_mps2 / 2.0  # mean speed V/2 over the blend
+    turns = []  # (angle_deg, a = distance before corner, b = distance after corner)
+    for k in range(1, len(dirs)):
+        ang = float(wrap_pi(dirs[k] - dirs[k - 1]))
+        if abs(ang) < 1e-6:
+            turns.append((0.0, 0.0, 0.0))
+            continue
+        a, b = _turn_offsets(ang, speed_mps, turn_radius_m, turn_blend_s)
+        turns.append((math.degrees(ang), a, b))
+    legs.append(Speed(speed_mps, max_accel_mps2, mode=mode))
+    before = accel_dist  # distance of the current leg already used
+    for k in range(len(dirs)):
+        after = turns[k][1] if k < len(turns) else accel_dist  # needed at the end of leg k
+        straight = lens[k] - before - after
+        if straight < -1e-6:
+            raise ValueError(
+                f"leg {k} ({lens[k]:.1f} m) is too short for the turn radius / acceleration; "
+                "reduce speed or radius or move the waypoints apart"
+            )
+        if straight > 1e-6:
+            legs.append(Straight(straight))
+        if k < len(turns):
+            ang, _, b = turns[k]
+            if ang != 0.0:
+                legs.append(Turn(ang, turn_radius_m, turn_blend_s))
+            before = b
+    legs.append(Speed(0.0, max_accel_mps2))
+    return legs
+
+
+def _turn_offsets(angle_rad: float, speed_mps: float, radius_m: float, blend_s: float) -> tuple[float, float]:
+    """Distances a (before the corner on the entry line) and b (after, on the exit line) of a blended turn."""
+    rate, blend, hold = _rate_profile(angle_rad, speed_mps / radius_m, blend_s)
+    ch = Channel(0.0)
+    ch.blend(0.0, blend, rate)
+    ch.blend(blend + hold, blend, 0.0)
+    dur = 2 * blend + hold
+    n = max(2000, int(dur * 2000))
+    t = np.linspace(0.0, dur, n + 1)
+    psi = ch.evaluate(t)[3]
+    vx, vy = speed_mps * np.cos(psi), speed_mps * np.sin(psi)
+    dt = t[1] - t[0]
+    dx = float(np.sum(vx[:-1] + vx[1:]) * dt / 2)
+    dy = float(np.sum(vy[:-1] + vy[1:]) * dt / 2)
+    # a * (1, 0) + b * (cos ang, sin ang) = (dx, dy)
+    ca, sa = math.cos(angle_rad), math.sin(angle_rad)
+    b = dy / sa
+    a = dx - b * ca
+    return a, b
