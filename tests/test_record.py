@@ -370,6 +370,10 @@ def test_finalised_file(tmp_path):
 def test_chunks_close_by_message_time_and_size(tmp_path):
     path = tmp_path / "c.mcap"
     rec = Recorder(path, flush_interval_s=1.0)
+    rec.add_metadata("source", {"kind": "live"})
+    # Header and metadata reach the OS at once (unbuffered file), before any chunk is written.
+    early = summarize(path)
+    assert early.recovered and early.message_count == 0 and early.metadata_dict("source") == {"kind": "live"}
     for i in range(250):  # 100 Hz for 2.5 s
         rec.write(ImuSample(i / 100, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), 0))
     # Still open: closed chunks are in the file already. A chunk closes on the first message >= 1 s after

@@ -8,12 +8,13 @@ input gives byte-identical payloads (and, with the same software versions, a byt
 Durability. A killed process (SIGKILL, OOM, power cut after the OS wrote its cache) loses only the chunk
 in progress:
 
-* The mcap ``Writer`` gets an unbuffered file (:class:`_DirectFile`), so every record it writes -- a
-  finished chunk, its message indexes, a metadata record -- is handed to the OS at once.
-* A chunk is closed (``Writer.flush()``, public API) when ``flush_interval_s`` of *message* time has
-  passed since its first message or when about ``chunk_size`` bytes of messages fill it, whichever
-  comes first. The Writer's own size trigger is switched off (its chunk_size is set to "never") so the
-  recorder alone decides chunk boundaries and knows when one was written. A live process that is
+* A chunk is closed with ``Writer.flush()`` (public API: finalises the chunk, writes it and its message
+  indexes, flushes the stream) when ``flush_interval_s`` of *message* time has passed since its first
+  message or when about ``chunk_size`` bytes of messages fill it, whichever comes first. The Writer's
+  own size trigger is switched off (its chunk_size is set to "never"): that one writes a chunk without
+  flushing the stream, and the recorder alone deciding chunk boundaries keeps every closed chunk on disk.
+* The Writer gets an unbuffered file (:class:`_DirectFile`), so records written outside chunks (header,
+  metadata) reach the OS at once too, not when the next chunk closes. A live process that is
   killed thus loses at most ~``flush_interval_s`` of data; :meth:`Recorder.flush` closes the chunk on
   demand (e.g. from a wall-clock timer in the live loop when messages stop arriving).
 * ``close()`` writes the summary section and footer (``Writer.finish()``); it is idempotent and runs from
