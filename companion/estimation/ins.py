@@ -198,6 +198,17 @@ class StrapdownIns:
         self.t_s = t_s
         return dt
 
+    def coast(self, t_s: float) -> None:
+        """Advance to ``t_s`` at constant velocity and attitude (bridging a stall in the IMU stream)."""
+        dt = t_s - self.t_s
+        if dt <= 0:
+            return
+        rm, rn = self.radii()
+        self.lat_rad += self.vn / (rm + self.h_m) * dt
+        self.lon_rad += self.ve / ((rn + self.h_m) * math.cos(self.lat_rad)) * dt
+        self.h_m -= self.vd * dt
+        self.t_s = t_s
+
     # -- error-state corrections (error = true - estimate; attitude C_true = (I + [psi x]) C_est)
     def correct(self, dpos_ned_m, dvel_ned_mps, psi_ned_rad, dba, dbg) -> None:
         rm, rn = self.radii()

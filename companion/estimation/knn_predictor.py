@@ -38,7 +38,10 @@ Where the paper is vague, the choices (all in :class:`KnnConfig`):
   ``sigma^2 = sigma_fix^2 + (sigma_vel * tau)^2 + (0.5 * sigma_acc * tau^2)^2 + spread``, where sigma_fix is
   the receiver's own accuracy at the anchor fix, sigma_vel the velocity uncertainty of a 0.1 s-grid
   window, sigma_acc a manoeuvring-acceleration level typical of a small multicopter, and ``spread`` the
-  accumulated weighted variance of the neighbours' continuations along the recursion.
+  square of the summed weighted standard deviations of the neighbours' continuations along the recursion
+  (summed, not added in quadrature: a wrong step is repeated by the following steps, so the error grows
+  linearly). With smooth receiver data the neighbours agree and this term stays small; with noisy fixes
+  it dominates and tells the filter to distrust the predictor.
 
 Pure: no I/O, no clocks. Positions in, positions out.
 """
@@ -137,7 +140,7 @@ class KnnPredictor:
         self._anchor_sigma = (c.sigma_fix_h_m, c.sigma_fix_v_m)
         self._steps: list[np.ndarray] = []  # points at anchor + i*step, i = 0.. (i=0 is the fix)
         self._window_pts: deque[np.ndarray] = deque(maxlen=c.window)
-        self._spread = [0.0]  # accumulated neighbour variance (m^2, horizontal) per step
+        self._spread = [0.0]  # summed neighbour std (m, horizontal) up to each step
         self._methods: list[str] = ["fix"]
 
     # ------------------------------------------------------------------ database
@@ -304,13 +307,15 @@ class KnnPredictor:
             method = "knn"
         self._window_pts.append(nxt)
         self._steps.append(nxt)
-        self._spread.append(self._spread[-1] + var)
+        self._spread.append(self._spread[-1] + math.sqrt(var))
         self._methods.append(method)
 
     def _sigmas(self, age: float, spread: float) -> tuple[float, float]:
         c = self.config
         sh0, sv0 = self._anchor_sigma
-        sh = math.sqrt(sh0**2 + (c.sigma_vel_h_mps * age) ** 2 + (0.5 * c.sigma_acc_h_mps2 * age**2) ** 2 + spread)
+        sh = math.sqrt(
+            sh0**2 + (c.sigma_vel_h_mps * age) ** 2 + (0.5 * c.sigma_acc_h_mps2 * age**2) ** 2 + spread**2
+        )
         sv = math.sqrt(sv0**2 + (c.sigma_vel_v_mps * age) ** 2 + (0.5 * c.sigma_acc_v_mps2 * age**2) ** 2)
         return sh, sv
 

@@ -1,0 +1,135 @@
+"""Navigator (KNN predictor + INS + error-state KF) on simulated flights with known truth."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from companion.estimation.integrator import Navigator, NavigatorConfig, run_navigator
+from companion.estimation.outputs import FusedState, MeasurementUpdate, ModeChange, PredictorPoint
+from companion.estimation.synthetic import simulate_flight
+from companion.events import GnssFix, ImuSample
+
+
+def _fused(out, mode=None):
+    return [o for o in out if isinstance(o, FusedState) and (mode is None or o.mode == mode)]
+
+
+def _errors(sim, fused):
+    t = np.array([o.t_s for o in fused])
+    est = np.array([sim.frame.to_ned_m(o.lat_deg, o.lon_deg, o.alt_msl_m) for o in fused])
+    vel = np.array([[o.vel_n_mps, o.vel_e_mps, o.vel_d_mps] for o in fused])
+    tp = np.stack([np.interp(t, sim.truth_t_s, sim.truth_pos_ned_m[:, i]) for i in range(3)], 1)
+    tv = np.stack([np.interp(t, sim.truth_t_s, sim.truth_vel_ned_mps[:, i]) for i in range(3)], 1)
+    cov = np.array([o.cov_diag[:6] for o in fused])
+    return t, np.hstack([est - tp, vel - tv]), cov
+
+
+def test_ins_filter_is_consistent_nees_per_axis():
+    """Normalised estimation error squared per position/velocity axis averages ~1 (bounds 0.3-2.5)."""
+    nees = []
+    for seed in (11, 12):
+        sim = simulate_flight(60.0, np.random.default_rng(seed))
+        out = run_navigator(sim.events)
+        fused = _fused(out, "ins")
+        t, err, cov = _errors(sim, fused)
+        keep = t > t[0] + 15.0  # after attitude/bias convergence
+        nees.append((err[keep] ** 2 / cov[keep]).mean(axis=0))
+        assert np.sqrt((err[keep, :2] ** 2).sum(axis=1).mean()) < 1.0  # 1.5 m GNSS noise is averaged down
+    nees = np.mean(nees, axis=0)
+    assert np.all(nees > 0.3) and np.all(nees < 2.5), nees
+
+
+def test_streaming_with_late_types_equals_batch_replay():
+    sim = simulate_flight(30.0, np.random.default_rng(5))
+    batch = run_navigator(sim.events)
+    # arrival order of a real link: GNSS 0.15 s late, attitude 0.05 s late, IMU on time
+    delay = {GnssFix: 0.15, ImuSample: 0.0}
+    arrival = sorted(sim.events, key=lambda e: e.t_s + delay.get(type(e), 0.05))
+    assert arrival != sim.events
+    nav = Navigator()
+    stream = []
+    for ev in arrival:
+        stream.extend(nav.process(ev))
+    stream.extend(nav.finish())
+    assert len(stream) == len(batch)
+    assert [o.to_dict() for o in stream] == [o.to_dict() for o in batch]
+    a = np.array([[o.north_m, o.east_m, o.down_m, *o.cov_diag] for o in _fused(stream)])
+    b = np.array([[o.north_m, o.east_m, o.down_m, *o.cov_diag] for o in _fused(batch)])
+    assert np.array_equal(a, b)
+
+
+def test_fused_output_is_10_hz_and_names_measurements():
+    sim = simulate_flight(20.0, np.random.default_rng(2))
+    fused = _fused(run_navigator(sim.events))
+    dt = np.diff([o.t_s for o in fused])
+    assert np.allclose(dt, 0.1)
+    assert {o.measurement for o in fused} >= {"gnss", "predictor"}
+    assert all(len(o.cov_diag) == 15 for o in fused)
+
+
+def _inject_glitch(events, t_start, t_end, offset_n_m):
+    out = []
+    for e in events:
+        if isinstance(e, GnssFix) and t_start <= e.t_s < t_end:
+            e = dataclasses.replace(e, lat_deg=e.lat_deg + offset_n_m / 111_200.0)
+        out.append(e)
+    return out
+
+
+@pytest.mark.parametrize("with_imu", [True, False], ids=["ins", "kinematic"])
+def test_gate_rejects_injected_50_m_glitch(with_imu):
+    sim = simulate_flight(50.0, np.random.default_rng(9), with_imu=with_imu)
+    t0 = sim.events[0].t_s
+    events = _inject_glitch(sim.events, t0 + 30.0, t0 + 32.0, 50.0)
+    out = run_navigator(events)
+    mode = "ins" if with_imu else "kinematic"
+    ups = [u for u in out if isinstance(u, MeasurementUpdate) and u.kind == "gnss_pos" and u.filter == mode]
+    glitch = [u for u in ups if t0 + 30.0 <= u.t_s < t0 + 32.0]
+    assert len(glitch) == 10 and not any(u.accepted for u in glitch)
+    after = [u.accepted for u in ups if t0 + 33.0 <= u.t_s]
+    assert np.mean(after) > 0.95  # real fixes are taken again once the glitch is over
+    fused = [o for o in _fused(out, mode) if t0 + 30.0 <= o.t_s < t0 + 33.0]
+    _t, err, _c = _errors(sim, fused)
+    assert np.abs(err[:, 0]).max() < 5.0  # nowhere near the 50 m glitch
+    pts = [p for p in out if isinstance(p, PredictorPoint) and t0 + 30.0 <= p.t_s < t0 + 32.0]
+    assert max(p.age_s for p in pts) > 1.5  # the predictor bridged the glitch instead of learning it
+
+
+def test_bridges_8_s_blockage_with_ins():
+    sim = simulate_flight(60.0, np.random.default_rng(4))
+    t0 = sim.events[0].t_s
+    events = [e for e in sim.events if not (isinstance(e, GnssFix) and t0 + 40.0 < e.t_s < t0 + 48.0)]
+    out = run_navigator(events)
+    fused = [o for o in _fused(out, "ins") if t0 + 40.0 < o.t_s < t0 + 48.0]
+    _t, err, cov = _errors(sim, fused)
+    herr = np.hypot(err[:, 0], err[:, 1])
+    assert herr.max() < 3.0
+    assert fused[-1].age_since_fix_s > 7.5
+    assert fused[-1].sigma_h_m > fused[0].sigma_h_m  # covariance grows without fixes
+
+
+@pytest.mark.parametrize("imu_rate,expect", [(50.0, "ins"), (1.2, "kinematic"), (None, "kinematic")])
+def test_mode_selection_and_reason(imu_rate, expect):
+    sim = simulate_flight(20.0, np.random.default_rng(1), imu_rate_hz=imu_rate or 50.0, with_imu=imu_rate is not None)
+    nav = Navigator()
+    out = []
+    for e in sim.events:
+        out.extend(nav.process(e))
+    out.extend(nav.finish())
+    assert nav.mode == expect
+    modes = [o for o in out if isinstance(o, ModeChange)]
+    assert modes and modes[-1].mode == expect and modes[-1].reason == nav.mode_reason
+    if imu_rate == 1.2:
+        assert "rate" in nav.mode_reason and "1." in nav.mode_reason
+    if imu_rate is None:
+        assert "no IMU" in nav.mode_reason
+    fused = _fused(out)
+    assert fused and all(o.mode == expect for o in fused)
+    _t, err, _c = _errors(sim, fused[50:])
+    assert np.sqrt((err[:, :2] ** 2).sum(axis=1).mean()) < 2.0
+
+
+def test_bad_config_raises():
+    with pytest.raises(ValueError):
+        NavigatorConfig(output_rate_hz=0.0)
