@@ -566,3 +566,24 @@ def test_sigkill_recovers_closed_chunks(tmp_path):
     ]
     assert [d for _, _, d in iter_payloads(path)] == expected
     assert "RECOVERED" in format_summary(s)
+
+
+def test_close_from_signal_handler_during_write(tmp_path):
+    """A Python signal handler may call close() in the middle of a write: the write completes, then the file is finalised."""
+    old = signal.getsignal(signal.SIGALRM)
+    try:
+        for k in range(6):
+            path = tmp_path / f"alarm{k}.mcap"
+            rec = Recorder(path, chunk_size=2048)
+            signal.signal(signal.SIGALRM, lambda *_: rec.close())
+            signal.setitimer(signal.ITIMER_REAL, 0.01 + 0.007 * k)
+            written = 0
+            with pytest.raises(RecordError, match="closed"):
+                while written < 10**7:
+                    rec.write(ImuSample(written / 1000, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), 0))
+                    written += 1
+            s = summarize(path)
+            assert s.finalised and s.message_count == written > 0
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
