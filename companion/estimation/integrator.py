@@ -76,6 +76,7 @@ class NavigatorConfig:
 
     knn: KnnConfig = field(default_factory=KnnConfig)
     imu_index: int = 0
+    gnss_instance: int = 0  # GPS1 only (a second receiver may be a different, unrelated source)
     output_rate_hz: float = 10.0
     min_imu_rate_hz: float = 20.0
     rate_window_s: float = 2.0
@@ -128,6 +129,7 @@ class Navigator:
         self.config = c = config or NavigatorConfig()
         self.mode = "init"
         self.mode_reason = "waiting for the first GNSS fix"
+        self._reason_key = "init"
         self.predictor = KnnPredictor(c.knn)
         self.frame: LocalFrame | None = None
         self._heap: list = []
@@ -189,16 +191,17 @@ class Navigator:
             if ev.imu_index == self.config.imu_index:
                 self._on_imu(ev)
         elif isinstance(ev, GnssFix):
-            if ev.has_position and ev.alt_msl_m is not None:
+            if ev.has_position and ev.alt_msl_m is not None and ev.instance == self.config.gnss_instance:
                 self._on_fix(ev)
         elif isinstance(ev, Attitude):
             self._att = ev
             if self.mode == "ins" and self.config.fuse_attitude:
                 self._ins_attitude_update(ev)
 
-    def _set_mode(self, t: float, mode: str, reason: str) -> None:
-        if mode != self.mode or reason != self.mode_reason:
-            self.mode, self.mode_reason = mode, reason
+    def _set_mode(self, t: float, mode: str, reason: str, key: str) -> None:
+        """Switch mode; a ModeChange is emitted when the mode or the kind of reason changes."""
+        if mode != self.mode or key != self._reason_key:
+            self.mode, self.mode_reason, self._reason_key = mode, reason, key
             self._out.append(ModeChange(t, mode, reason, self._imu_rate(t)))
 
     def _imu_rate(self, t: float) -> float:
@@ -311,23 +314,30 @@ class Navigator:
         imu_alive = self._last_imu_t is not None and t - self._last_imu_t < c.imu_timeout_s
         if self.mode == "ins":
             if not imu_alive:
-                self._set_mode(t, "kinematic", f"IMU{c.imu_index} stream stopped for > {c.imu_timeout_s:g} s")
+                self._set_mode(
+                    t, "kinematic", f"IMU{c.imu_index} stream stopped for > {c.imu_timeout_s:g} s", "imu_stopped"
+                )
                 self.ins = None
             return
         if not imu_alive or self._last_imu_t is None:
+            key = "no_imu" if self._last_imu_t is None else "imu_stopped"
             reason = f"no IMU{c.imu_index} samples in the source: kinematic constant-velocity model"
+            if key == "imu_stopped":
+                reason = f"IMU{c.imu_index} stream stopped for > {c.imu_timeout_s:g} s: kinematic constant-velocity model"
         elif rate < c.min_imu_rate_hz:
+            key = "low_rate"
             reason = (
                 f"IMU{c.imu_index} rate {rate:.1f} Hz < {c.min_imu_rate_hz:g} Hz needed for strapdown "
                 "mechanisation: kinematic constant-velocity model"
             )
         elif self._att is None:
+            key = "no_attitude"
             reason = "no attitude source to initialise the INS: kinematic constant-velocity model"
         else:
             self._ins_init(t, z, vel)
-            self._set_mode(t, "ins", f"strapdown INS on IMU{c.imu_index} at {rate:.0f} Hz + error-state KF")
+            self._set_mode(t, "ins", f"strapdown INS on IMU{c.imu_index} at {rate:.0f} Hz + error-state KF", "ins")
             return
-        self._set_mode(t, "kinematic", reason)
+        self._set_mode(t, "kinematic", reason, key)
 
     # ------------------------------------------------------------------ INS filter
     def _ins_init(self, t: float, z, vel) -> None:
