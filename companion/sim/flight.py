@@ -35,7 +35,7 @@ from companion.sim.trajectory import (
     legs_through_waypoints,
 )
 
-#: A field near Canberra (Mount Stromlo area farmland), ArduPilot's CMAC test site region.
+#: ArduPilot SITL's default home: the Canberra Model Aircraft Club field (CMAC), 584 m MSL.
 CANBERRA_FIELD = LocalFrame(ref_lat_deg=-35.3632, ref_lon_deg=149.1652, ref_alt_m=584.0)
 #: UTC of boot time 0 in the sample flight: 2025-03-15 01:30:00 UTC (12:30 local, Canberra).
 SAMPLE_BOOT_EPOCH_US = calendar.timegm((2025, 3, 15, 1, 30, 0, 0, 0, 0)) * 1_000_000
@@ -174,7 +174,7 @@ def sample_flight() -> SimulatedFlight:
     config = SimConfig(gnss=GnssModel(outages_s=(SAMPLE_OUTAGE_S,)))
     t0, t1 = SAMPLE_OUTAGE_S
     texts = [
-        (0.5, MAV_SEVERITY_INFO, "ArduCopter V4.3.7 (companion.sim simulated vehicle)"),
+        (0.5, MAV_SEVERITY_INFO, "ArduCopter V4.3.7 (simulated: companion.sim)"),
         (1.0, MAV_SEVERITY_INFO, "Frame: QUAD/X"),
         (t0 + 0.3, MAV_SEVERITY_CRITICAL, "GPS Glitch"),
         (t1 + 0.3, MAV_SEVERITY_CRITICAL, "GPS Glitch cleared"),

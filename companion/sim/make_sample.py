@@ -50,12 +50,58 @@ def truth_csv_text(flight: SimulatedFlight, rate_hz: float = TRUTH_RATE_HZ) -> s
     return buf.getvalue()
 
 
+def plot_flight(flight: SimulatedFlight, path: Path) -> None:
+    """Track (NE) with the GNSS fixes, height and horizontal GNSS error over time; outages shaded."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tr = flight.profile.sample_rate(TRUTH_RATE_HZ)
+    g = flight.gnss
+    fix = g.has_fix
+    gps_ned = flight.profile.frame.to_ned_m(g.lat_deg[fix], g.lon_deg[fix], g.alt_msl_m[fix])
+    fig = plt.figure(figsize=(11, 7))
+    ax = fig.add_subplot(1, 2, 1)
+    ax.plot(tr.pos_ned_m[:, 1], tr.pos_ned_m[:, 0], "k-", lw=1, label="truth")
+    ax.plot(gps_ned[:, 1], gps_ned[:, 0], ".", ms=2, color="tab:blue", label="GPS_RAW_INT fixes")
+    out = flight.config.gnss.outages_s
+    for t0, t1 in out:
+        sel = (tr.t_s >= t0) & (tr.t_s < t1)
+        ax.plot(tr.pos_ned_m[sel, 1], tr.pos_ned_m[sel, 0], "-", color="tab:red", lw=3, label="GNSS outage")
+    ax.set_xlabel("east (m)")
+    ax.set_ylabel("north (m)")
+    ax.set_aspect("equal")
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title("sample flight: horizontal track")
+    ax2 = fig.add_subplot(2, 2, 2)
+    ax2.plot(tr.t_s, -tr.pos_ned_m[:, 2], "k-", lw=1, label="height above home (truth)")
+    ax2.plot(tr.t_s, np.hypot(tr.vel_ned_mps[:, 0], tr.vel_ned_mps[:, 1]), "-", color="tab:green", lw=1,
+             label="ground speed (m/s)")
+    ax2.set_ylabel("m, m/s")
+    ax2.legend(loc="best", fontsize=8)
+    ax3 = fig.add_subplot(2, 2, 4, sharex=ax2)
+    err = g.pos_error_ned_m
+    ax3.plot(g.t_s[fix], np.hypot(err[fix, 0], err[fix, 1]), "-", color="tab:blue", lw=1, label="horizontal")
+    ax3.plot(g.t_s[fix], err[fix, 2], "-", color="tab:orange", lw=1, label="down")
+    ax3.set_ylabel("GNSS error (m)")
+    ax3.set_xlabel("boot time (s)")
+    ax3.legend(loc="best", fontsize=8)
+    for a in (ax2, ax3):
+        for t0, t1 in out:
+            a.axvspan(t0, t1, color="tab:red", alpha=0.2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output .tlog (default: %(default)s)")
     ap.add_argument(
         "--truth", type=Path, default=None, help="truth CSV (default: <out stem>_truth.csv beside the tlog)"
     )
+    ap.add_argument("--plot", type=Path, default=None, help="also draw the flight (track, height, GNSS error) to this PNG")
     args = ap.parse_args(argv)
     flight = sample_flight()
     data, counts = flight_tlog_bytes(flight)
@@ -69,6 +115,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"wrote {truth} ({truth.stat().st_size} bytes)")
     print(f"seed {SAMPLE_SEED}; GNSS outage {SAMPLE_OUTAGE_S[0]:.1f}-{SAMPLE_OUTAGE_S[1]:.1f} s; armed "
           f"{flight.armed_s[0]:.2f}-{flight.armed_s[1]:.2f} s")
+    if args.plot is not None:
+        plot_flight(flight, args.plot)
+        print(f"wrote {args.plot}")
     np.set_printoptions(precision=4, suppress=True)
     print(f"IMU biases: accel {flight.imu.accel_bias_frd_mps2} m/s^2, gyro {flight.imu.gyro_bias_frd_radps} rad/s")
     if flight.imu2 is not None:

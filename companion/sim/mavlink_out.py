@@ -155,7 +155,10 @@ def attitude(boot_s: float, euler_rad, rates_frd_radps):
 
 
 def statustext(severity: int, text: str):
-    return mavlink2.MAVLink_statustext_message(int(severity), text[:50].encode("ascii"), 0, 0)
+    raw = text.encode("ascii")
+    if len(raw) > 50:
+        raise ValueError(f"STATUSTEXT carries at most 50 characters, got {len(raw)}: {text!r}")
+    return mavlink2.MAVLink_statustext_message(int(severity), raw, 0, 0)
 
 
 # ---------------------------------------------------------------------------------------------

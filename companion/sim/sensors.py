@@ -11,9 +11,11 @@ Default noise levels (per sample, 1 sigma) and why:
   The bias is what remains after a level calibration (a few mG).
 * Gyroscope: white 0.002 rad/s (0.11 deg/s); constant bias ~ N(0, 0.001 rad/s) per axis (0.06 deg/s),
   i.e. what remains after ArduPilot's gyro calibration at boot plus temperature drift.
-* Magnetometer: Earth field at Canberra (IGRF, approx. N 23.5, E 5.4, D -52.0 uT), white 3 mGauss.
+* Magnetometer: Earth field at Canberra (IGRF approx.: declination +12.5 deg, inclination -66 deg,
+  57 uT, i.e. N 22.8, E 5.1, D -52.5 uT), white 3 mGauss.
 * GNSS (u-blox M8 class, open sky): the position error is a first-order Gauss-Markov process per
-  axis (steady sigma 0.8 m horizontal per axis, 1.5 m vertical, correlation time 60 s), so it wanders
+  axis (steady sigma 0.6 m per horizontal axis, i.e. 0.85 m horizontal RMS, 1.2 m vertical,
+  correlation time 60 s), so it wanders
   like a random walk over a minute but stays bounded, plus 0.05 m white noise; velocity has 0.08 m/s
   white noise per axis. HDOP drifts around 0.8 (VDOP 1.3), 13 to 15 satellites.
 * During an outage window the receiver keeps reporting at its rate with fix_type = 1 (NO_FIX),
@@ -33,7 +35,7 @@ from companion.geodesy import LocalFrame
 from companion.sim.trajectory import Trajectory
 
 #: Earth magnetic field near Canberra, NED, in milligauss (1 uT = 10 mGauss).
-MAG_FIELD_CANBERRA_NED_MGAUSS = (235.0, 54.0, -520.0)
+MAG_FIELD_CANBERRA_NED_MGAUSS = (228.0, 51.0, -525.0)
 
 
 @dataclass(frozen=True)
@@ -89,8 +91,8 @@ def gauss_markov(n: int, dt_s: float, sigma: float, tau_s: float, rng: np.random
 
 @dataclass(frozen=True)
 class GnssModel:
-    horiz_sigma_m: float = 0.8
-    vert_sigma_m: float = 1.5
+    horiz_sigma_m: float = 0.6
+    vert_sigma_m: float = 1.2
     tau_s: float = 60.0
     white_m: float = 0.05
     vel_sigma_mps: float = 0.08

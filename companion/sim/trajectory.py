@@ -369,7 +369,7 @@ class FlightProfile:
         pos[1:] = np.cumsum(steps, axis=0)
         self._grid_pos = pos
 
-    def _horizontal_position(self, t, vel, acc) -> np.ndarray:
+    def _horizontal_position(self, t, vel) -> np.ndarray:
         """Cubic Hermite interpolation of the integrated grid, with the analytic velocity at the nodes."""
         h = self._grid_dt
         tg = np.clip(t, 0.0, (len(self._grid_pos) - 1) * h)
@@ -410,7 +410,7 @@ class FlightProfile:
         t = np.atleast_1d(np.asarray(t_s, dtype=float))
         vel, acc, jerk, psi, w, ivd = self._kinematics(t)
         pos = np.empty((len(t), 3))
-        pos[:, :2] = self._horizontal_position(t, vel, acc)
+        pos[:, :2] = self._horizontal_position(t, vel)
         pos[:, 2] = ivd
         pos += self.start_ned_m
         euler, euler_rate, rate_frd, f_frd = attitude_from_motion(acc, jerk, psi, w)
