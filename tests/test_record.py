@@ -52,6 +52,8 @@ def validate(value, schema: dict, where: str = "$") -> None:
         assert value == schema["const"] and type(value) is type(schema["const"]), f"{where}: {value!r} != const"
     if "type" in schema:
         types = schema["type"] if isinstance(schema["type"], list) else [schema["type"]]
+        if schema.get("nullable") is True:  # the recorder's Foxglove-compatible way to say "or null"
+            types = types + ["null"]
         ok = {
             "number": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
             "integer": lambda v: isinstance(v, int) and not isinstance(v, bool),
@@ -86,14 +88,38 @@ def validate(value, schema: dict, where: str = "$") -> None:
         assert value >= schema.get("minimum", -math.inf) and value <= schema.get("maximum", math.inf), where
 
 
-def validate_all(value, schema):
+def validate_all(value, schema, strict: bool = False):
+    """Hand check; plus the real validator when ``jsonschema`` is installed (standard null style only)."""
     validate(value, schema)
     try:
-        import jsonschema  # optional: the real validator when installed
+        import jsonschema
     except ImportError:
         return
     jsonschema.Draft202012Validator.check_schema(schema)
-    jsonschema.validate(value, schema, cls=jsonschema.Draft202012Validator)
+    if strict:
+        jsonschema.validate(value, schema, cls=jsonschema.Draft202012Validator)
+
+
+def assert_foxglove_parsable(schema: dict, where: str = "$") -> None:
+    """The rules of Foxglove's JSON-schema reader (@foxglove/mcap-support parseJsonSchema.ts): an object
+    with ``properties``; each field an enum ``oneOf`` of numeric consts or a single ``type`` string among
+    boolean/string/number/integer/object/array; array items a single type, objects recursively."""
+    assert schema.get("type") == "object", f"{where}: expected type object, got {schema.get('type')!r}"
+    assert isinstance(schema.get("properties"), dict), f"{where}: object without properties"
+    for name, field in schema["properties"].items():
+        w = f"{where}.{name}"
+        if "oneOf" in field:
+            assert all(isinstance(a.get("const"), (int, float)) for a in field["oneOf"]), w
+            continue
+        t = field.get("type")
+        assert t in ("boolean", "string", "number", "integer", "object", "array"), f"{w}: type {t!r}"
+        if t == "object":
+            assert_foxglove_parsable(field, w)
+        elif t == "array":
+            it = field.get("items")
+            assert isinstance(it, dict) and it.get("type") in ("boolean", "string", "number", "integer", "object"), w
+            if it["type"] == "object":
+                assert_foxglove_parsable(it, w + "[]")
 
 
 def test_validator_rejects_wrong_payloads():
@@ -161,6 +187,7 @@ def test_event_schema_and_payloads(tmp_path, cls):
         assert payload == json.loads(json.dumps(ev.to_dict()))  # the event's own to_dict(), NaN -> null
         assert data == json.dumps(ev.to_dict(), separators=(",", ":"), allow_nan=False).encode()
         validate_all(payload, schema)
+        validate_all(payload, dataclass_schema(cls, "jsonschema"), strict=True)
     with open(tmp_path / "a.mcap", "rb") as f:
         summary = make_reader(f).get_summary()
     (sch,) = summary.schemas.values()
@@ -171,13 +198,35 @@ def test_event_schema_and_payloads(tmp_path, cls):
 
 def test_schema_type_mapping():
     imu = dataclass_schema(ImuSample)["properties"]
-    assert imu["accel_frd_mps2"] == {"type": "array", "items": {"type": ["number", "null"]}, "minItems": 3, "maxItems": 3}
-    assert imu["imu_index"] == {"type": "integer"}
+    num = {"type": "number", "nullable": True}  # NaN is recorded as null
+    assert imu["accel_frd_mps2"] == {"type": "array", "items": num, "minItems": 3, "maxItems": 3}
+    assert imu["imu_index"] == {"type": "integer"} and imu["t_s"] == num
     gnss = dataclass_schema(GnssFix)["properties"]
-    assert gnss["lat_deg"]["type"] == ["number", "null"] and gnss["satellites"]["type"] == ["integer", "null"]
+    assert gnss["lat_deg"] == {"type": "number", "nullable": True}
+    assert gnss["satellites"] == {"type": "integer", "nullable": True} and gnss["fix_type"] == {"type": "integer"}
     assert dataclass_schema(StatusText)["properties"]["text"] == {"type": "string"}
-    heartbeat = dataclass_schema(EVENT_TYPES[EVENT_TYPES.index(next(c for c in EVENT_TYPES if c.__name__ == "Heartbeat"))])
+    heartbeat = dataclass_schema(next(c for c in EVENT_TYPES if c.__name__ == "Heartbeat"))
     assert heartbeat["properties"]["armed"] == {"type": "boolean"}
+    # standard JSON-schema style: type lists
+    strict_imu = dataclass_schema(ImuSample, "jsonschema")["properties"]
+    assert strict_imu["accel_frd_mps2"]["items"] == {"type": ["number", "null"]}
+    assert strict_imu["imu_index"] == {"type": "integer"}
+    strict_gnss = dataclass_schema(GnssFix, "jsonschema")["properties"]
+    assert strict_gnss["lat_deg"]["type"] == ["number", "null"] and strict_gnss["satellites"]["type"] == ["integer", "null"]
+    with pytest.raises(AssertionError):
+        assert_foxglove_parsable(dataclass_schema(GnssFix, "jsonschema"))  # the reason for the default style
+    with pytest.raises(ValueError, match="null_style"):
+        dataclass_schema(GnssFix, "xml")
+
+
+@pytest.mark.parametrize("cls", EVENT_TYPES, ids=lambda c: c.__name__)
+def test_schemas_are_foxglove_parsable(cls):
+    assert_foxglove_parsable(dataclass_schema(cls))
+
+
+def test_foxglove_parsable_others():
+    assert_foxglove_parsable(dataclass_schema(_FilterState))
+    assert_foxglove_parsable(LOCATION_FIX_SCHEMA)
 
 
 @dataclass(frozen=True)
@@ -203,8 +252,10 @@ class _FilterState:
 def test_any_dataclass(tmp_path):
     schema = dataclass_schema(_FilterState)
     assert schema["properties"]["inner"]["type"] == "object"
-    assert schema["properties"]["best"]["type"] == ["object", "null"]
-    assert schema["properties"]["state"] == {"type": "array", "items": {"type": ["number", "null"]}}
+    assert schema["properties"]["best"]["type"] == "object" and schema["properties"]["best"]["nullable"] is True
+    assert schema["properties"]["state"] == {"type": "array", "items": {"type": "number", "nullable": True}}
+    strict = dataclass_schema(_FilterState, "jsonschema")
+    assert strict["properties"]["best"]["type"] == ["object", "null"]
     items = [
         _FilterState(0.5, [1.0, math.nan], (0.1, 0.2, 0.3), _Inner(2.0, "a"), None, {"k": 1.0}, True),
         _FilterState(1.5, [np.float64(3.0)], (), _Inner(math.inf, "b"), _Inner(1.0, "c"), {}, False),
@@ -217,6 +268,7 @@ def test_any_dataclass(tmp_path):
     payloads = [json.loads(d) for _, _, d in iter_payloads(tmp_path / "s.mcap")]
     for p in payloads:
         validate_all(p, schema)
+        validate_all(p, strict, strict=True)
     assert payloads[0]["state"] == [1.0, None] and payloads[0]["inner"] == {"x_m": 2.0, "label": "a"}
     assert payloads[1]["inner"]["x_m"] is None and payloads[1]["best"] == {"x_m": 1.0, "label": "c"}
 

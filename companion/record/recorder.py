@@ -48,6 +48,7 @@ from companion.record.schemas import (
     JSON_SCHEMA_ENCODING,
     LOCATION_FIX_SCHEMA,
     LOCATION_FIX_SCHEMA_NAME,
+    NULL_STYLES,
     _plain,
     dataclass_schema,
     schema_name,
@@ -118,6 +119,9 @@ class Recorder:
     :param flush_interval_s: close a chunk when this much *message* time has passed since its first message.
     :param compression: "zstd" (default; ``zstandard`` is a dependency of ``mcap``), "lz4" or "none".
     :param fsync: also ``os.fsync`` whenever a chunk closes (survives power loss, costs SD-card writes).
+    :param null_style: how derived schemas say "may be null": "foxglove" (default, one ``type`` per field
+        plus ``"nullable": true``, which Foxglove can display) or "jsonschema" (standard ``[X, "null"]``
+        type lists, which Foxglove's reader rejects). See :mod:`companion.record.schemas`.
     """
 
     def __init__(
@@ -128,9 +132,12 @@ class Recorder:
         flush_interval_s: float = 1.0,
         compression: str = "zstd",
         fsync: bool = False,
+        null_style: str = "foxglove",
     ):
         if compression not in _COMPRESSION:
             raise ValueError(f"compression must be one of {sorted(_COMPRESSION)}, not {compression!r}")
+        if null_style not in NULL_STYLES:
+            raise ValueError(f"null_style must be one of {NULL_STYLES}, not {null_style!r}")
         if chunk_size <= 0 or not flush_interval_s > 0:
             raise ValueError("chunk_size and flush_interval_s must be positive")
         self.path = Path(path)
@@ -140,6 +147,7 @@ class Recorder:
         self._chunk_size = int(chunk_size)
         self._interval_ns = max(1, round(flush_interval_s * 1e9))
         self._fsync = fsync
+        self._null_style = null_style
         self._chunk_bytes = 0
         self._chunk_t0: int | None = None  # log time of the open chunk's first message
         self._busy = False
@@ -353,7 +361,7 @@ class Recorder:
 
     def _register_dataclass(self, cls: type, topic: str | None) -> tuple[int, Any, Any]:
         self._check_open()
-        schema = dataclass_schema(cls)  # raises TypeError for non-dataclasses
+        schema = dataclass_schema(cls, self._null_style)  # raises TypeError for non-dataclasses
         if "t_s" not in schema["properties"]:
             raise TypeError(f"{cls.__qualname__} has no t_s field: cannot give its messages a log time")
         resolved = topic if topic is not None else getattr(cls, "topic", None)

@@ -6,20 +6,27 @@ from its dataclass fields and type hints and cached:
 ====================================  ==========================================================
 field type                            JSON schema
 ====================================  ==========================================================
-``float``                             ``{"type": "number"}``
+``float``                             ``{"type": "number"}``, nullable (NaN/inf -> null)
 ``int`` / ``IntEnum``                 ``{"type": "integer"}``
 ``bool``                              ``{"type": "boolean"}``
 ``str``                               ``{"type": "string"}``
-``X | None``                          schema of X with ``"null"`` added to its ``type``
+``X | None``                          schema of X, nullable (see below)
 ``tuple[float, float, float]``        array of numbers with minItems = maxItems = 3
 ``tuple[float, ...]``, ``list[X]``    array of X
-``dict[str, X]``                      object whose values are X
+``dict[str, X]``                      object (no fixed properties) whose values are X
 nested dataclass                      object (recursively)
 ====================================  ==========================================================
 
-Payloads are what :func:`to_jsonable` makes of an instance (the class's own ``to_dict()`` when it has
-one, as :class:`companion.events.Event` does), so NaN/inf are ``null``: float fields allow ``null``
-as well as numbers, because a NaN field is how an estimator says "unknown".
+Payloads are what the class's ``to_dict()`` (companion.events.Event) or :func:`to_jsonable` make of an
+instance, so NaN/inf become ``null``.
+
+Null, and why two styles. Standard JSON Schema says "number or null" as ``"type": ["number", "null"]``,
+but Foxglove's JSON-schema reader (``parseJsonSchema`` in @foxglove/mcap-support, also in Lichtblick)
+switches on a single ``type`` string per field and rejects a topic whose schema has a type list, so
+such a record would not display. The default style, ``null_style="foxglove"``, therefore keeps one
+``type`` per field and marks ``X | None`` and float fields with the annotation ``"nullable": true``
+(OpenAPI's keyword; JSON-schema validators ignore it). ``null_style="jsonschema"`` writes the standard type lists instead (``[X, "null"]`` for
+``X | None`` and for every float, since NaN -> null), for tools that validate payloads strictly.
 """
 
 from __future__ import annotations
@@ -37,6 +44,8 @@ JSON_MESSAGE_ENCODING = "json"
 
 LOCATION_FIX_SCHEMA_NAME = "foxglove.LocationFix"
 
+NULL_STYLES = ("foxglove", "jsonschema")
+
 
 def schema_name(cls: type) -> str:
     """MCAP schema name of a dataclass: its module-qualified class name."""
@@ -44,21 +53,24 @@ def schema_name(cls: type) -> str:
 
 
 @lru_cache(maxsize=None)
-def dataclass_schema(cls: type) -> dict:
-    """JSON schema (draft 2020-12 keywords) of a dataclass's ``to_jsonable`` payload; cached per class.
+def dataclass_schema(cls: type, null_style: str = "foxglove") -> dict:
+    """JSON schema of a dataclass's payload; cached per (class, null_style). Do not mutate the result.
 
     Raises TypeError for a non-dataclass or for a field type with no JSON mapping.
     """
+    if null_style not in NULL_STYLES:
+        raise ValueError(f"null_style must be one of {NULL_STYLES}, not {null_style!r}")
     if not (isinstance(cls, type) and dataclasses.is_dataclass(cls)):
         raise TypeError(f"{cls!r} is not a dataclass type")
     try:
         hints = typing.get_type_hints(cls)
     except Exception as exc:  # unresolvable forward reference
         raise TypeError(f"cannot resolve the type hints of {cls.__qualname__}: {exc}") from exc
+    strict = null_style == "jsonschema"
     props: dict[str, Any] = {}
     for f in dataclasses.fields(cls):
         try:
-            props[f.name] = _type_schema(hints[f.name])
+            props[f.name] = _type_schema(hints[f.name], strict)
         except TypeError as exc:
             raise TypeError(f"{cls.__qualname__}.{f.name}: {exc}") from None
     schema: dict[str, Any] = {
@@ -74,17 +86,21 @@ def dataclass_schema(cls: type) -> dict:
     return schema
 
 
-def _type_schema(tp: Any) -> dict:
+def _type_schema(tp: Any, strict: bool) -> dict:
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
     if origin is Union or origin is types.UnionType:
         non_null = [a for a in args if a is not type(None)]
         if len(non_null) != 1:
             raise TypeError(f"unsupported union {tp!r}: only `X | None` is recorded")
-        inner = dict(_type_schema(non_null[0]))
+        inner = dict(_type_schema(non_null[0], strict))
         if len(non_null) < len(args):  # Optional
-            t = inner["type"]
-            inner["type"] = (list(t) if isinstance(t, list) else [t]) + (["null"] if "null" not in t else [])
+            if strict:
+                t = inner["type"]
+                t = list(t) if isinstance(t, list) else [t]
+                inner["type"] = t if "null" in t else t + ["null"]
+            else:
+                inner["nullable"] = True
         return inner
     if tp is bool:
         return {"type": "boolean"}
@@ -95,34 +111,28 @@ def _type_schema(tp: Any) -> dict:
     if tp is int:
         return {"type": "integer"}
     if tp is float:
-        # to_dict() turns NaN/inf into None, so a float field may be null.
-        return {"type": ["number", "null"]}
+        # NaN/inf are recorded as null, so every float may be null
+        return {"type": ["number", "null"]} if strict else {"type": "number", "nullable": True}
     if tp is str:
         return {"type": "string"}
     if origin is tuple:
         if len(args) == 2 and args[1] is Ellipsis:
-            return {"type": "array", "items": _type_schema(args[0])}
+            return {"type": "array", "items": _type_schema(args[0], strict)}
         if args and all(a == args[0] for a in args):
             n = len(args)
-            return {"type": "array", "items": _type_schema(args[0]), "minItems": n, "maxItems": n}
-        if args:
-            return {
-                "type": "array",
-                "prefixItems": [_type_schema(a) for a in args],
-                "items": False,
-                "minItems": len(args),
-            }
-        raise TypeError(f"unsupported bare tuple {tp!r}: give the item types")
-    if origin in (list, typing.Sequence) or tp is list:
+            return {"type": "array", "items": _type_schema(args[0], strict), "minItems": n, "maxItems": n}
+        raise TypeError(f"unsupported tuple {tp!r}: items must all have one type (else use a nested dataclass)")
+    if origin is list:
         if not args:
             raise TypeError(f"unsupported bare list {tp!r}: give the item type")
-        return {"type": "array", "items": _type_schema(args[0])}
+        return {"type": "array", "items": _type_schema(args[0], strict)}
     if origin is dict:
         if not args or args[0] is not str:
             raise TypeError(f"unsupported dict {tp!r}: keys must be str")
-        return {"type": "object", "additionalProperties": _type_schema(args[1])}
+        # "properties": {} so readers that walk properties (Foxglove) accept the field
+        return {"type": "object", "properties": {}, "additionalProperties": _type_schema(args[1], strict)}
     if isinstance(tp, type) and dataclasses.is_dataclass(tp):
-        nested = dict(dataclass_schema(tp))
+        nested = dict(dataclass_schema(tp, "jsonschema" if strict else "foxglove"))
         nested.pop("description", None)
         return nested
     raise TypeError(f"unsupported field type {tp!r}")
