@@ -1,0 +1,1 @@
+"""Gravity-aided navigation scenarios and benchmarks (issue 5)."""
