@@ -143,7 +143,11 @@ class Recorder:
         self.path = Path(path)
         self._closed = True  # until the file is open, close() has nothing to do
         self._file = _DirectFile(self.path)
-        self._writer = Writer(self._file, chunk_size=_NEVER, compression=_COMPRESSION[compression])
+        try:
+            self._writer = Writer(self._file, chunk_size=_NEVER, compression=_COMPRESSION[compression])
+        except BaseException:
+            self._file.close()
+            raise
         self._chunk_size = int(chunk_size)
         self._interval_ns = max(1, round(flush_interval_s * 1e9))
         self._fsync = fsync
@@ -152,7 +156,7 @@ class Recorder:
         self._chunk_t0: int | None = None  # log time of the open chunk's first message
         self._busy = False
         self._close_requested = False
-        # (class, topic) -> (channel id, serialiser); topic -> channel id for dicts and locations
+        # (class, topic) -> (channel id, (field names, getter) or None, to_dict)
         self._dc_channels: dict[tuple[type, str | None], tuple[int, Any, Any]] = {}
         self._named_channels: dict[str, int] = {}
         self._schemas: dict[str, tuple[int, bytes]] = {}  # schema name -> (id, schema bytes)
@@ -179,7 +183,7 @@ class Recorder:
         t_ns = _time_ns(item.t_s)
         if fast is not None:
             # Field values straight to json: same bytes as to_dict() (tuples -> arrays, IntEnum -> int),
-            # about twice as fast. NaN/inf or a value json cannot take -> the exact to_dict() path.
+            # without a per-field Python loop. NaN/inf or a value json cannot take -> the exact to_dict() path.
             try:
                 data = json.dumps(dict(zip(fast[0], fast[1](item))), separators=(",", ":"), allow_nan=False).encode()
             except (ValueError, TypeError):
@@ -258,8 +262,14 @@ class Recorder:
         self._writer.add_metadata(name, dict(data))
 
     def flush(self) -> None:
-        """Close the chunk in progress now, so everything written so far is in the file."""
-        self._check_open()
+        """Close the chunk in progress now, so everything written so far is in the file.
+
+        For a live link, call it from a wall-clock timer (e.g. every second) so a quiet link still has its
+        last messages on disk; the timer only decides when to flush, no wall time enters the record.
+        A no-op once the recorder is closed.
+        """
+        if self._closed or self._busy:
+            return
         self._close_chunk()
 
     @property
