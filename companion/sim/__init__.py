@@ -1,0 +1,42 @@
+"""Deterministic multirotor flight simulator that emits real MAVLink 2 telemetry.
+
+* :mod:`companion.sim.trajectory`: smooth (C2) trajectories from legs or waypoints, with consistent
+  attitude, body rates and specific force (pure numpy);
+* :mod:`companion.sim.sensors`: IMU, magnetometer, GNSS (with outages) and attitude-estimate models;
+* :mod:`companion.sim.flight`: one seeded simulated flight on the autopilot's boot clock, and the sample;
+* :mod:`companion.sim.mavlink_out`: ArduCopter-like MAVLink messages and framing;
+* :mod:`companion.sim.tlog`: .tlog writing;
+* ``python -m companion.sim.make_sample``: regenerates ``logs/sample_flight.tlog``.
+"""
+
+from companion.sim.flight import SimConfig, SimulatedFlight, sample_flight, sample_profile, simulate_flight
+from companion.sim.trajectory import (
+    Climb,
+    FlightProfile,
+    Hold,
+    Land,
+    Speed,
+    Straight,
+    Trajectory,
+    Turn,
+    Yaw,
+    legs_through_waypoints,
+)
+
+__all__ = [
+    "Climb",
+    "FlightProfile",
+    "Hold",
+    "Land",
+    "SimConfig",
+    "SimulatedFlight",
+    "Speed",
+    "Straight",
+    "Trajectory",
+    "Turn",
+    "Yaw",
+    "legs_through_waypoints",
+    "sample_flight",
+    "sample_profile",
+    "simulate_flight",
+]
