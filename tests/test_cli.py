@@ -37,7 +37,7 @@ def test_replay_every_real_log_then_inspect(log, tmp_path):
     assert topics["/input/gnss"].count > 0 and topics["/map/gnss"].count > 0
     assert topics["/map/gnss"].schema_name == "foxglove.LocationFix"
     assert ("/input/imu" in topics) == (log != LOG_AC402)
-    assert {"source", "config", "summary", "companion"} <= {m for m in s.metadata}
+    assert {"source", "config", "summary", "companion"} <= {name for name, _ in s.metadata}
     ins = run_cli("inspect", out)
     assert ins.returncode == 0 and "/input/gnss" in ins.stdout
 
