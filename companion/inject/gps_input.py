@@ -1,0 +1,387 @@
+"""The GPS_INPUT injector stage: FusedState -> MAVLink GPS_INPUT (common.xml, id 232), with integrity checks.
+
+Field by field (what ArduPilot's AP_GPS_MAV driver and EKF3 do with it, observed on ArduCopter 4.x SITL):
+
+* ``lat``/``lon``: degE7 WGS84 from the fused state. ``alt``: metres above mean sea level; the navigator
+  carries ``alt_msl_m`` (the receiver's MSL altitude as ArduPilot reports it, see :mod:`companion.events`)
+  so it is sent unchanged -- no geoid model is applied here.
+* ``vn``/``ve``/``vd``: NED velocity (m/s). Always filled: ArduPilot takes an ignored velocity as zero.
+* ``horiz_accuracy``/``vert_accuracy``/``speed_accuracy``: from the filter covariance (``sigma_h_m`` =
+  sqrt(P_nn + P_ee), ``sigma_v_m`` = sqrt(P_dd), speed: sqrt(max(P_vn, P_ve))), so they grow while the
+  navigator coasts. ``hdop``/``vdop``: the same sigmas divided by an assumed user range error
+  (``uere_m``); the HDOP must not be flagged as ignored or EKF3 never passes its GPS checks.
+* ``fix_type``: 3 (3D) only while sigma_h <= ``max_h_acc_3d_m`` and sigma_v <= ``max_v_acc_3d_m``;
+  2 (2D) while sigma_h <= ``max_h_acc_2d_m``; 1 (no fix) beyond. ``satellites_visible``: the configured
+  ``satellites`` (>= 6, which ArduPilot requires) with a 2D/3D fix, 0 without.
+* ``time_week``/``time_week_ms``: GPS time of the solution from the autopilot's SYSTEM_TIME (UTC + leap
+  seconds), 0/0 while unknown (ArduPilot then uses its own arrival time). ``time_usec``: the autopilot's
+  boot time of the solution (microseconds since boot).
+* ``yaw``: 0 (not available) unless ``send_yaw`` and the state has a heading (then cdeg, 36000 = north).
+* ``gps_id``: the GPS instance fed (0 for GPS1_TYPE = 14, 1 for GPS2_TYPE = 14).
+
+Integrity: a state with a non-finite or out-of-range field, lat = lon = 0, an implausible speed, a
+non-positive or non-finite sigma, or a time not after the previous one is never sent; it is counted and
+recorded on ``/inject/dropped`` with the reason. Every GPS_INPUT built (sent in ``inject`` mode, or what
+would be sent in ``shadow`` mode) is recorded on ``/inject/gps_input``.
+
+Activation: ``activate = "always"`` sends every valid solution (the set-up where the companion is the
+GPS instance the EKF follows); ``"gnss_loss"`` sends only while the real receiver (``receiver_instance``)
+has no 3D fix or has been silent for ``gnss_timeout_s``, and stops ``recover_s`` after it is healthy again.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+from companion import units
+from companion.estimation.outputs import FusedState
+from companion.events import Event, FixType, GnssFix, Reboot, SystemTime
+
+#: GPS time = UTC + leap seconds; GPS epoch 1980-01-06T00:00:00Z as a Unix time.
+GPS_EPOCH_UNIX_S = 315964800
+GPS_LEAP_S = 18  # GPS - UTC since 2017-01-01 (IERS bulletin C); change with the next leap second
+WEEK_S = 604800
+
+IGNORE_ALT = 1
+IGNORE_HDOP = 2
+IGNORE_VDOP = 4
+IGNORE_VEL_HORIZ = 8
+IGNORE_VEL_VERT = 16
+IGNORE_SPEED_ACCURACY = 32
+IGNORE_HORIZONTAL_ACCURACY = 64
+IGNORE_VERTICAL_ACCURACY = 128
+
+MODES = ("off", "shadow", "inject")
+ACTIVATIONS = ("always", "gnss_loss")
+
+
+@dataclass(frozen=True)
+class InjectConfig:
+    mode: str = "shadow"  # off | shadow (compute and record only) | inject (send)
+    gps_id: int = 1  # GPS instance fed: 0 with GPS1_TYPE = 14, 1 with GPS2_TYPE = 14
+    activate: str = "always"  # always | gnss_loss
+    rate_hz: float = 10.0  # at most this many GPS_INPUT per second of vehicle time (>= 5 when injecting)
+    max_h_acc_3d_m: float = 10.0  # 3D fix only while sigma_h is within this ...
+    max_v_acc_3d_m: float = 20.0  # ... and sigma_v within this
+    max_h_acc_2d_m: float = 50.0  # 2D fix up to this sigma_h; no fix beyond
+    satellites: int = 10  # satellites_visible reported with a fix (ArduPilot needs >= 6)
+    uere_m: float = 2.5  # HDOP = sigma_h / uere_m, VDOP = sigma_v / uere_m
+    max_speed_mps: float = 80.0  # a faster state is not plausible for the vehicle: not sent
+    receiver_instance: int = 0  # the real receiver's GnssFix.instance (for activate = gnss_loss)
+    gnss_timeout_s: float = 0.6  # receiver silent this long (vehicle time) counts as lost
+    recover_s: float = 3.0  # receiver healthy this long before injection stops (gnss_loss)
+    send_yaw: bool = False  # send the state's heading in ``yaw`` (only with a real heading source)
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be one of {', '.join(MODES)}, not {self.mode!r}")
+        if self.activate not in ACTIVATIONS:
+            raise ValueError(f"activate must be one of {', '.join(ACTIVATIONS)}, not {self.activate!r}")
+        if not 0 <= self.gps_id <= 1:
+            raise ValueError(f"gps_id must be 0 (GPS1_TYPE = 14) or 1 (GPS2_TYPE = 14), not {self.gps_id}")
+        if self.mode == "inject" and self.rate_hz < 5.0:
+            raise ValueError(f"rate_hz must be >= 5 while injecting (ArduPilot drops a slower GPS), not {self.rate_hz:g}")
+        if not 0 < self.rate_hz <= 50:
+            raise ValueError(f"rate_hz must be in (0, 50], not {self.rate_hz:g}")
+        if not 0 < self.max_h_acc_3d_m <= self.max_h_acc_2d_m:
+            raise ValueError("need 0 < max_h_acc_3d_m <= max_h_acc_2d_m")
+        if not self.max_v_acc_3d_m > 0:
+            raise ValueError("max_v_acc_3d_m must be > 0")
+        if not 6 <= self.satellites <= 254:
+            raise ValueError(f"satellites must be in 6..254 (ArduPilot needs >= 6 for a usable fix), not {self.satellites}")
+        for k in ("uere_m", "max_speed_mps", "gnss_timeout_s", "recover_s"):
+            if not getattr(self, k) > 0:
+                raise ValueError(f"{k} must be > 0")
+
+
+@dataclass(frozen=True, slots=True)
+class GpsInputRecord(Event):
+    """One GPS_INPUT built from a fused state, in SI (``sent``: it left on the link)."""
+
+    mode: str
+    sent: bool
+    gps_id: int
+    fix_type: int
+    fix_reason: str
+    lat_deg: float
+    lon_deg: float
+    alt_msl_m: float
+    vel_n_mps: float
+    vel_e_mps: float
+    vel_d_mps: float
+    h_acc_m: float
+    v_acc_m: float
+    speed_acc_mps: float
+    hdop: float
+    vdop: float
+    satellites: int
+    ignore_flags: int
+    time_boot_us: int
+    time_week: int
+    time_week_ms: int
+    yaw_cdeg: int
+    topic: ClassVar[str] = "/inject/gps_input"
+
+
+@dataclass(frozen=True, slots=True)
+class InjectorDrop(Event):
+    """A fused state that was not turned into GPS_INPUT, and why."""
+
+    reason: str
+    topic: ClassVar[str] = "/inject/dropped"
+
+
+@dataclass(frozen=True, slots=True)
+class InjectorState(Event):
+    """Injection switched on or off (activate = gnss_loss), or the autopilot rebooted."""
+
+    active: bool
+    reason: str
+    topic: ClassVar[str] = "/inject/state"
+
+
+def gps_week_from_unix(unix_s: float) -> tuple[int, int]:
+    """(GPS week, milliseconds of week) for a UTC Unix time."""
+    gps_s = unix_s - GPS_EPOCH_UNIX_S + GPS_LEAP_S
+    week = int(gps_s // WEEK_S)
+    ms = int(round((gps_s - week * WEEK_S) * 1000.0))
+    if ms >= WEEK_S * 1000:
+        week, ms = week + 1, ms - WEEK_S * 1000
+    return week, ms
+
+
+def encode_gps_input(rec: GpsInputRecord):
+    """The pymavlink GPS_INPUT message for a record; scaled integers through :mod:`companion.units`."""
+    from pymavlink.dialects.v20 import ardupilotmega as mav
+
+    lat, lon = units.degE7_from_deg(rec.lat_deg), units.degE7_from_deg(rec.lon_deg)
+    if lat == 0 and lon == 0:
+        raise ValueError("refusing to encode lat = lon = 0")
+    return mav.MAVLink_gps_input_message(
+        rec.time_boot_us, rec.gps_id, rec.ignore_flags, rec.time_week_ms, rec.time_week, rec.fix_type,
+        lat, lon, rec.alt_msl_m, rec.hdop, rec.vdop, rec.vel_n_mps, rec.vel_e_mps, rec.vel_d_mps,
+        rec.speed_acc_mps, rec.h_acc_m, rec.v_acc_m, rec.satellites, rec.yaw_cdeg,
+    )
+
+
+def decode_gps_input(msg) -> dict[str, Any]:
+    """A received GPS_INPUT in SI (for the vehicle simulator and tests)."""
+    return {
+        "time_boot_us": int(msg.time_usec),
+        "gps_id": int(msg.gps_id),
+        "ignore_flags": int(msg.ignore_flags),
+        "time_week": int(msg.time_week),
+        "time_week_ms": int(msg.time_week_ms),
+        "fix_type": int(msg.fix_type),
+        "lat_deg": units.deg_from_degE7(msg.lat),
+        "lon_deg": units.deg_from_degE7(msg.lon),
+        "alt_msl_m": float(msg.alt),
+        "hdop": float(msg.hdop),
+        "vdop": float(msg.vdop),
+        "vel_ned_mps": (float(msg.vn), float(msg.ve), float(msg.vd)),
+        "speed_acc_mps": float(msg.speed_accuracy),
+        "h_acc_m": float(msg.horiz_accuracy),
+        "v_acc_m": float(msg.vert_accuracy),
+        "satellites": int(msg.satellites_visible),
+        "yaw_cdeg": int(msg.yaw),
+    }
+
+
+def _finite(*vals) -> bool:
+    return all(isinstance(v, (int, float)) and math.isfinite(v) for v in vals)
+
+
+class Injector:
+    """Pipeline stage: consumes FusedState (and GnssFix, SystemTime, Reboot), emits GpsInputRecord.
+
+    ``sender`` (set by the live runtime) takes the pymavlink message and returns True when it was
+    written to the link; without one (replay) nothing leaves the process and records say ``sent=False``.
+    ``on_sent(record)`` is called right after a message left (the runtime measures latency there).
+    Pure apart from the sender callback: vehicle time only.
+    """
+
+    def __init__(self, config: InjectConfig | None = None, sender: Callable[[Any], bool] | None = None) -> None:
+        self.config = config or InjectConfig()
+        self.sender = sender
+        self.on_sent: Callable[[GpsInputRecord], None] | None = None
+        self.dropped: Counter[str] = Counter()
+        self.sent = 0
+        self.built = 0
+        self.fix_types: Counter[int] = Counter()
+        self._boot_offset_s = 0.0  # vehicle time minus autopilot boot time (grows at each reboot)
+        self._utc: SystemTime | None = None
+        self._last_state_t: float | None = None
+        self._last_out_t: float | None = None
+        self._last_good_gnss_t: float | None = None
+        self._last_gnss_t: float | None = None
+        self._healthy_since: float | None = None
+        self._active = self.config.activate == "always"
+
+    # -- stage interface ----------------------------------------------------------------------
+    def process(self, item: Any) -> list[Event]:
+        if self.config.mode == "off":
+            return []
+        if isinstance(item, FusedState):
+            return self._on_state(item)
+        if isinstance(item, GnssFix):
+            return self._on_gnss(item)
+        if isinstance(item, SystemTime):
+            if _finite(item.unix_time_s) and item.unix_time_s > GPS_EPOCH_UNIX_S:
+                self._utc = item
+            else:
+                self.dropped["SYSTEM_TIME without a valid UTC"] += 1
+            return []
+        if isinstance(item, Reboot):
+            # boot time restarts: keep the offset so time_usec is the autopilot's new boot time; forget
+            # UTC (SYSTEM_TIME is re-sent) and the time order of states (the navigator restarts its clock)
+            self._boot_offset_s = item.t_s - item.new_boot_s
+            self._utc = None
+            self._last_out_t = None
+            return [InjectorState(item.t_s, self._active, "autopilot rebooted")]
+        return []
+
+    def finish(self) -> list[Event]:
+        return []
+
+    def metadata(self) -> dict[str, str]:
+        c = self.config
+        meta = {"mode": c.mode, "gps_id": str(c.gps_id), "activate": c.activate, "rate_hz": f"{c.rate_hz:g}"}
+        meta["built"], meta["sent"] = str(self.built), str(self.sent)
+        for k, v in sorted(self.fix_types.items()):
+            meta[f"fix_type.{k}"] = str(v)
+        for why, n in sorted(self.dropped.items()):
+            meta[f"dropped.{why}"] = str(n)
+        return meta
+
+    def summary_lines(self) -> list[str]:
+        c = self.config
+        fix = ", ".join(f"{FixType(k).name} {v}" for k, v in sorted(self.fix_types.items())) or "none"
+        lines = [f"gps_input    mode {c.mode}, gps_id {c.gps_id}: {self.built} built, {self.sent} sent ({fix})"]
+        lines += [f"gps_input    not sent {n}: {why}" for why, n in sorted(self.dropped.items())]
+        return lines
+
+    # -- activation ---------------------------------------------------------------------------
+    def _on_gnss(self, fix: GnssFix) -> list[Event]:
+        c = self.config
+        if fix.instance != c.receiver_instance:
+            return []
+        self._last_gnss_t = fix.t_s
+        good = fix.fix_type >= FixType.FIX_3D and fix.has_position
+        if not good:
+            self._healthy_since = None
+            return self._set_active(fix.t_s, True, f"receiver fix_type {fix.fix_type}")
+        if self._healthy_since is None:
+            self._healthy_since = fix.t_s
+        if fix.t_s - self._healthy_since >= c.recover_s:
+            return self._set_active(fix.t_s, False, f"receiver 3D fix for {c.recover_s:g} s")
+        return []
+
+    def _set_active(self, t_s: float, active: bool, reason: str) -> list[Event]:
+        if self.config.activate == "always" or active == self._active:
+            return []
+        self._active = active
+        return [InjectorState(t_s, active, reason)]
+
+    # -- states -> GPS_INPUT -----------------------------------------------------------------
+    def _drop(self, t_s: float, reason: str) -> list[Event]:
+        self.dropped[reason] += 1
+        return [InjectorDrop(t_s, reason)]
+
+    def _on_state(self, s: FusedState) -> list[Event]:
+        c = self.config
+        out: list[Event] = []
+        if (
+            c.activate == "gnss_loss"
+            and not self._active
+            and (self._last_gnss_t is None or s.t_s - self._last_gnss_t > c.gnss_timeout_s)
+        ):
+            self._healthy_since = None
+            out += self._set_active(s.t_s, True, f"receiver silent for more than {c.gnss_timeout_s:g} s")
+        if not self._active:
+            return out
+        if not _finite(s.t_s):
+            return out + self._drop(0.0, "non-finite time")
+        if self._last_state_t is not None and s.t_s <= self._last_state_t:
+            return out + self._drop(s.t_s, "time not after the previous state")
+        self._last_state_t = s.t_s
+        if self._last_out_t is not None and s.t_s - self._last_out_t < 1.0 / c.rate_hz - 1e-6:
+            return out  # rate limit: not a fault, not recorded
+        why = _invalid(s, c)
+        if why:
+            return out + self._drop(s.t_s, why)
+        rec = self._record(s)
+        self._last_out_t = s.t_s
+        self.built += 1
+        self.fix_types[rec.fix_type] += 1
+        if c.mode == "inject" and self.sender is not None:
+            sent = bool(self.sender(encode_gps_input(rec)))
+            if sent:
+                self.sent += 1
+                rec = _replace_sent(rec)
+                if self.on_sent is not None:
+                    self.on_sent(rec)
+            else:
+                self.dropped["link not ready"] += 1
+        out.append(rec)
+        return out
+
+    def _record(self, s: FusedState) -> GpsInputRecord:
+        c = self.config
+        sh, sv = s.sigma_h_m, s.sigma_v_m
+        if sh <= c.max_h_acc_3d_m and sv <= c.max_v_acc_3d_m:
+            fix, why = int(FixType.FIX_3D), "within 3D bounds"
+        elif sh <= c.max_h_acc_2d_m:
+            fix = int(FixType.FIX_2D)
+            why = f"sigma_h {sh:.1f} m > {c.max_h_acc_3d_m:g}" if sh > c.max_h_acc_3d_m else f"sigma_v {sv:.1f} m > {c.max_v_acc_3d_m:g}"
+        else:
+            fix, why = int(FixType.NO_FIX), f"sigma_h {sh:.1f} m > {c.max_h_acc_2d_m:g}"
+        flags = 0
+        cov = s.cov_diag
+        if len(cov) >= 6 and _finite(cov[3], cov[4]) and min(cov[3], cov[4]) >= 0:
+            speed_acc = math.sqrt(max(cov[3], cov[4]))
+        else:
+            speed_acc, flags = 0.0, flags | IGNORE_SPEED_ACCURACY
+        week = week_ms = 0
+        if self._utc is not None:
+            week, week_ms = gps_week_from_unix(self._utc.unix_time_s + (s.t_s - self._utc.t_s))
+        boot_s = max(0.0, s.t_s - self._boot_offset_s)
+        yaw = 0
+        if c.send_yaw and _finite(s.yaw_rad):
+            yaw = units.cdeg_from_deg(math.degrees(s.yaw_rad) % 360.0) % 36000 or 36000
+        return GpsInputRecord(
+            t_s=s.t_s, mode=c.mode, sent=False, gps_id=c.gps_id, fix_type=fix, fix_reason=why,
+            lat_deg=s.lat_deg, lon_deg=s.lon_deg, alt_msl_m=s.alt_msl_m,
+            vel_n_mps=s.vel_n_mps, vel_e_mps=s.vel_e_mps, vel_d_mps=s.vel_d_mps,
+            h_acc_m=sh, v_acc_m=sv, speed_acc_mps=speed_acc, hdop=sh / c.uere_m, vdop=sv / c.uere_m,
+            satellites=c.satellites if fix >= FixType.FIX_2D else 0, ignore_flags=flags,
+            time_boot_us=units.us_from_s(boot_s), time_week=week, time_week_ms=week_ms, yaw_cdeg=yaw,
+        )
+
+
+def _replace_sent(rec: GpsInputRecord) -> GpsInputRecord:
+    from dataclasses import replace
+
+    return replace(rec, sent=True)
+
+
+def _invalid(s: FusedState, c: InjectConfig) -> str:
+    """Why a fused state cannot be stood behind ("" when it can)."""
+    if not _finite(s.lat_deg, s.lon_deg, s.alt_msl_m):
+        return "non-finite position"
+    if not (-90.0 <= s.lat_deg <= 90.0 and -180.0 <= s.lon_deg <= 180.0):
+        return "lat/lon out of range"
+    if units.degE7_from_deg(s.lat_deg) == 0 and units.degE7_from_deg(s.lon_deg) == 0:
+        return "lat = lon = 0"
+    if not -1000.0 <= s.alt_msl_m <= 20000.0:
+        return "altitude out of range"
+    if not _finite(s.vel_n_mps, s.vel_e_mps, s.vel_d_mps):
+        return "non-finite velocity"
+    if math.sqrt(s.vel_n_mps**2 + s.vel_e_mps**2 + s.vel_d_mps**2) > c.max_speed_mps:
+        return f"speed above {c.max_speed_mps:g} m/s"
+    if not (_finite(s.sigma_h_m, s.sigma_v_m) and s.sigma_h_m > 0 and s.sigma_v_m > 0):
+        return "no valid covariance"
+    return ""
