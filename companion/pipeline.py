@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from companion.events import Event, GnssFix
+from companion.events import Event, GnssFix, ImuSample
 from companion.sources.base import Source
 from companion.stats import StreamStats
 
@@ -70,7 +70,7 @@ class Pipeline:
 
     def _emit(self, item: Any) -> None:
         if self.sink is not None:
-            self.sink.write(item)
+            self.sink.write(item, _instance_topic(item))
         if not isinstance(item, Event):
             self.outputs += 1
 
@@ -85,6 +85,15 @@ class Pipeline:
 
 #: Assumed 1-sigma user range error when a receiver gives only DOPs (typical single-frequency u-blox).
 UERE_M = 2.5
+
+
+def _instance_topic(item: Any) -> str | None:
+    """Second and third sensors get their own topics (/input/imu1, /input/gnss1) so rates read right."""
+    if isinstance(item, ImuSample) and item.imu_index:
+        return f"{item.topic}{item.imu_index}"
+    if isinstance(item, GnssFix) and item.instance:
+        return f"{item.topic}{item.instance}"
+    return None
 
 
 def build_pipeline(sink: Sink | None, *, nav_config: Any = None, extra_stages: Iterable[Stage] = ()) -> Pipeline:
