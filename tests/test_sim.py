@@ -110,6 +110,13 @@ def test_waypoint_legs_fly_by_and_stop_at_last():
     assert turn_accel == pytest.approx(7.0**2 / 15.0, rel=1e-3)
 
 
+def test_waypoint_reversal_and_short_legs_are_rejected():
+    with pytest.raises(ValueError, match="reversal"):
+        legs_through_waypoints([(100.0, 0.0), (0.0, 0.0)], (-50.0, 0.0), 0.0, 5.0, 10.0)
+    with pytest.raises(ValueError, match="too short"):
+        legs_through_waypoints([(10.0, 0.0), (10.0, 10.0)], (0.0, 0.0), 0.0, 8.0, 20.0)
+
+
 @pytest.mark.parametrize(
     "legs, why",
     [
@@ -203,7 +210,7 @@ def test_sample_reads_cleanly_with_expected_counts_and_rates(flight, sample_mess
     assert counts["RAW_IMU"] == n_imu
     assert counts["SCALED_IMU2"] == n_imu
     assert counts["ATTITUDE"] == math.floor(dur * 10.0) + 1
-    assert counts["GPS_RAW_INT"] == math.floor(dur * 5.0) + 1
+    assert counts["GPS_RAW_INT"] == math.floor((dur - 0.1) * 5.0) + 1  # first fix at 0.1 s
     assert counts["SYSTEM_TIME"] == math.floor(dur) + 1
     assert counts["HEARTBEAT"] == 2 * (math.floor(dur) + 1)  # autopilot + ground station
     assert counts["STATUSTEXT"] == len(flight.statustexts)

@@ -63,6 +63,8 @@ MAV_SEVERITY_INFO = 6
 class SimConfig:
     imu_rate_hz: float = 50.0
     gnss_rate_hz: float = 5.0
+    #: first GNSS solution at this boot time (then every 1/rate): GPS_RAW_INT.time_usec = 0 means "no time"
+    gnss_offset_s: float = 0.1
     attitude_rate_hz: float = 10.0
     imu: ImuModel = ImuModel()
     #: the second IMU (SCALED_IMU2); None to leave it out
@@ -118,7 +120,8 @@ def simulate_flight(
     seqs = np.random.SeedSequence(seed).spawn(4)
     rng_imu, rng_imu2, rng_gnss, rng_att = (np.random.default_rng(s) for s in seqs)
     truth_imu = profile.sample_rate(config.imu_rate_hz)
-    truth_gnss = profile.sample_rate(config.gnss_rate_hz)
+    n_gnss = int(np.floor((profile.duration_s - config.gnss_offset_s) * config.gnss_rate_hz + 1e-9)) + 1
+    truth_gnss = profile.sample(config.gnss_offset_s + np.arange(n_gnss) / config.gnss_rate_hz)
     truth_att = profile.sample_rate(config.attitude_rate_hz)
     imu = simulate_imu(truth_imu, config.imu, rng_imu)
     imu2 = simulate_imu(truth_imu, config.imu2, rng_imu2) if config.imu2 is not None else None

@@ -521,6 +521,8 @@ def legs_through_waypoints(
         if abs(ang) < 1e-6:
             turns.append((0.0, 0.0, 0.0))
             continue
+        if abs(ang) > math.radians(170.0):
+            raise ValueError(f"waypoint {k}: a {math.degrees(abs(ang)):.0f} deg reversal cannot be flown by; add a waypoint")
         a, b = _turn_offsets(ang, speed_mps, turn_radius_m, turn_blend_s)
         turns.append((math.degrees(ang), a, b))
     legs.append(Speed(speed_mps, max_accel_mps2, mode=mode))
