@@ -27,6 +27,7 @@ Default noise levels (per sample, 1 sigma) and why:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -169,8 +170,8 @@ def simulate_gnss(traj: Trajectory, frame: LocalFrame, model: GnssModel, rng: np
 
 @dataclass(frozen=True)
 class AttitudeEstimateModel:
-    roll_pitch_sigma_rad: float = np.radians(0.2)
-    yaw_sigma_rad: float = np.radians(0.8)
+    roll_pitch_sigma_rad: float = math.radians(0.2)
+    yaw_sigma_rad: float = math.radians(0.8)
     tau_s: float = 20.0
     rate_noise_radps: float = 0.001
 
