@@ -5,7 +5,7 @@ import pytest
 
 from companion.matching import GravityMap, LocalGravityMap, MatchWindow
 from companion.matching.viterbi import (CellMap, ViterbiConfig, ViterbiMatcher, _step_sigma_m, brute_force_path,
-                                        build_layers, greedy_paths, viterbi_path)
+                                        build_layers, greedy_paths, viterbi_lattice, viterbi_path)
 
 
 def _rough_cells(seed=0, shape=(60, 60), cell_m=500.0):
@@ -40,6 +40,10 @@ def test_viterbi_equals_brute_force(seed, o, alpha, T):
     bf_path, bf_score = brute_force_path(layers, disp, sig)
     np.testing.assert_array_equal(path, bf_path)
     assert score == pytest.approx(bf_score, rel=1e-12, abs=1e-9)
+    # the separable lattice recursion (the matcher's default) gives the same path and score
+    lpath, lscore, _ = viterbi_lattice(layers, disp, sig, cmap.cell_m / o)
+    np.testing.assert_array_equal(lpath, bf_path)
+    assert lscore == pytest.approx(bf_score, rel=1e-12, abs=1e-9)
     # tiny blocks give the same answer as one block
     path2, score2, _ = viterbi_path(layers, disp, sig, max_pairs=3)
     np.testing.assert_array_equal(path2, path)
@@ -69,7 +73,8 @@ def test_alpha_zero_equals_unpruned_and_pruning_shrinks_states():
 def test_recovers_true_path_with_zero_noise(o, search):
     rng = np.random.default_rng(7)
     cmap = _rough_cells(7)
-    cfg = ViterbiConfig(n=7, o=o, alpha=0.1, T=6, sigma_z_mgal=1.0, sigma_v_mps=0.5, search=search)
+    cfg = ViterbiConfig(n=7, o=o, alpha=0.1, T=6, sigma_z_mgal=1.0, sigma_v_mps=0.5, search=search,
+                        representation_error=False)  # measurements are the cell values here
     win, true = _window(cmap, rng, T=6, ins_off=(900.0, -1100.0))
     res = ViterbiMatcher(None, cfg, cell_map=cmap).match(win)
     assert res.ok, res.reason

@@ -8,6 +8,12 @@ into o x o sub-cells that share the cell's gravity value (RVBMP-2, eqs. 20-21) a
   log p_v(c_t | v, c_t-1)  = -|c_t - c_t-1 - v_t-1 dt|^2 / (2 sigma_step^2)             (eq. 9)
   posterior of a step      = p_z * p_v                                                 (eq. 10)
 
+p_z is the paper's Gaussian; with representation_error (default) its sigma per cell is
+sqrt(sigma_z^2 + (|grad g| d / sqrt(12))^2): a measurement taken anywhere in a cell of side d differs from the
+cell-centre value by that much (the paper's simulation reads the measurement from the cell value itself, so it
+needs no such term; on a continuous field the true cell is otherwise pruned by eq. 25 whenever the field is
+steep). The log-likelihood keeps its -log sigma term because sigma varies per cell.
+
 The paper does not give p_v's form; we take a Gaussian on the displacement with
 sigma_step^2 = (sigma_v dt)^2 + 2 (d / sqrt(12))^2, the second term being the quantisation of a path that
 may only pass through (sub-)cell centres of spacing d.
@@ -45,6 +51,7 @@ class ViterbiConfig:
     sigma_z_mgal: float = 1.0  # gravimeter noise in p_z
     sigma_v_mps: float = 1.0  # velocity noise in p_v
     search: Literal["viterbi", "paper"] = "viterbi"
+    representation_error: bool = True  # add the within-cell spread of the field to sigma_z (see module doc)
     max_pairs_per_block: int = 4_000_000  # memory bound of one transition block (states_prev x states_next)
 
     def __post_init__(self):
@@ -83,6 +90,16 @@ class CellMap:
         self.g_mgal = g  # (rows=north, cols=east), NaN off-map/masked
         self.cell_m = float(cell_m)
         self.lmap = lmap
+        self._init_spread()
+
+    def _init_spread(self) -> None:
+        """RMS difference between the field anywhere in a cell and the cell-centre value: |grad g| cell / sqrt(12)."""
+        g = self.g_mgal
+        if min(g.shape) >= 2:
+            gn, ge = np.gradient(g, self.cell_m)
+            self.spread_mgal = np.hypot(gn, ge) * self.cell_m / np.sqrt(12.0)
+        else:
+            self.spread_mgal = np.zeros_like(g)
 
     @classmethod
     def from_array(cls, g_mgal: np.ndarray, cell_m: float, north0_m: float = 0.0, east0_m: float = 0.0) -> "CellMap":
@@ -92,6 +109,7 @@ class CellMap:
         self.north_m = north0_m + cell_m * np.arange(self.g_mgal.shape[0])
         self.east_m = east0_m + cell_m * np.arange(self.g_mgal.shape[1])
         self.lmap = None
+        self._init_spread()
         return self
 
     def cell_of(self, ne_m: np.ndarray) -> np.ndarray:
@@ -101,12 +119,13 @@ class CellMap:
         c = np.rint((ne[..., 1] - self.east_m[0]) / self.cell_m).astype(np.intp)
         return np.stack([r, c], axis=-1)
 
-    def value(self, rc: np.ndarray) -> np.ndarray:
+    def value(self, rc: np.ndarray, of: str = "g") -> np.ndarray:
+        arr = self.g_mgal if of == "g" else self.spread_mgal
         rc = np.asarray(rc, np.intp)
         r, c = rc[..., 0], rc[..., 1]
-        ok = (r >= 0) & (r < self.g_mgal.shape[0]) & (c >= 0) & (c < self.g_mgal.shape[1])
+        ok = (r >= 0) & (r < arr.shape[0]) & (c >= 0) & (c < arr.shape[1])
         out = np.full(r.shape, np.nan)
-        out[ok] = self.g_mgal[r[ok], c[ok]]
+        out[ok] = arr[r[ok], c[ok]]
         return out
 
     def centre(self, rc: np.ndarray) -> np.ndarray:
@@ -119,6 +138,7 @@ class _Layer:
     pos: np.ndarray  # (K, 2) state positions (sub-cell centres), NE metres
     logpz: np.ndarray  # (K,)
     ins_d2: np.ndarray  # (K,) squared distance to the INS position (tie-break)
+    ij: np.ndarray | None = None  # (K, 2) indices on the global sub-cell lattice (spacing cell_m / o)
 
 
 def build_layers(cmap: CellMap, window: MatchWindow, cfg: ViterbiConfig) -> list[_Layer]:
@@ -131,6 +151,8 @@ def build_layers(cmap: CellMap, window: MatchWindow, cfg: ViterbiConfig) -> list
     sub = (np.arange(o) - (o - 1) / 2.0) / o * cmap.cell_m  # sub-cell centre offsets
     s_n, s_e = np.meshgrid(sub, sub, indexing="ij")
     sub_off = np.column_stack([s_n.ravel(), s_e.ravel()])  # (o^2, 2)
+    l_n, l_e = np.meshgrid(np.arange(o), np.arange(o), indexing="ij")
+    sub_ij = np.column_stack([l_n.ravel(), l_e.ravel()])
     log_alpha = np.log(cfg.alpha) if cfg.alpha > 0 else -np.inf
     centres = cmap.cell_of(window.ins_ne_m)  # (T, 2)
     layers = []
@@ -140,13 +162,17 @@ def build_layers(cmap: CellMap, window: MatchWindow, cfg: ViterbiConfig) -> list
         ok = np.isfinite(g)
         if not ok.any():
             raise MatchFailure(f"no valid map cell around the INS position at sample {t}")
-        lpz = -0.5 * ((window.gravity_mgal[t] - g) / cfg.sigma_z_mgal) ** 2
+        sig = np.full(g.shape, cfg.sigma_z_mgal)
+        if cfg.representation_error:
+            sig = np.sqrt(sig**2 + np.nan_to_num(cmap.value(rc, "spread")) ** 2)
+        lpz = -0.5 * ((window.gravity_mgal[t] - g) / sig) ** 2 - np.log(sig)
         keep = ok & (lpz - np.nanmax(np.where(ok, lpz, -np.inf)) >= log_alpha)  # eq. 25
         cpos = cmap.centre(rc[keep])  # (k, 2)
         pos = (cpos[:, None, :] + sub_off[None, :, :]).reshape(-1, 2)
         lp = np.repeat(lpz[keep], o * o)  # eq. 21
         d2 = ((pos - window.ins_ne_m[t]) ** 2).sum(axis=1)
-        layers.append(_Layer(pos, lp, d2))
+        ij = (rc[keep][:, None, :] * o + sub_ij[None, :, :]).reshape(-1, 2)
+        layers.append(_Layer(pos, lp, d2, ij))
     return layers
 
 
@@ -194,6 +220,53 @@ def viterbi_path(layers: list[_Layer], disp_ne_m: np.ndarray, sigmas_m: np.ndarr
     path = [end]
     for arg in reversed(back):
         path.append(int(arg[path[-1]]))
+    return np.asarray(path[::-1], np.intp), float(delta[end]), delta
+
+
+def viterbi_lattice(layers: list[_Layer], disp_ne_m: np.ndarray, sigmas_m: np.ndarray,
+                    spacing_m: float) -> tuple[np.ndarray, float, np.ndarray]:
+    """Exact MAP path as `viterbi_path`, using the separability of the Gaussian p_v on the sub-cell lattice.
+
+    max_p [delta(p) - |q - p - D|^2 / 2s^2] = max_pn [-(qn - pn - Dn)^2 / 2s^2 + max_pe [delta(pn, pe) - (qe - pe - De)^2 / 2s^2]]
+    so each step is two 1-D max-plus products over the bounding boxes of the states (a generalised distance
+    transform) instead of one product over all state pairs. Ties are not broken by INS distance here.
+    """
+    d = spacing_m
+    delta = layers[0].logpz.copy()
+    backs = []
+    for t in range(1, len(layers)):
+        prev, nxt = layers[t - 1], layers[t]
+        a = 0.5 / sigmas_m[t - 1] ** 2
+        p0 = prev.ij.min(axis=0)
+        p_shape = prev.ij.max(axis=0) - p0 + 1
+        F = np.full(p_shape, -np.inf)
+        F[prev.ij[:, 0] - p0[0], prev.ij[:, 1] - p0[1]] = delta
+        q0 = nxt.ij.min(axis=0)
+        q_shape = nxt.ij.max(axis=0) - q0 + 1
+        pe = p0[1] + np.arange(p_shape[1])
+        qe = q0[1] + np.arange(q_shape[1])
+        ce = -a * ((qe[:, None] - pe[None, :]) * d - disp_ne_m[t - 1, 1]) ** 2  # (Qe, Pe)
+        s1 = F[:, None, :] + ce[None, :, :]  # (Pn, Qe, Pe)
+        arg1 = np.argmax(s1, axis=2)  # (Pn, Qe)
+        G = np.take_along_axis(s1, arg1[:, :, None], axis=2)[:, :, 0]
+        pn = p0[0] + np.arange(p_shape[0])
+        qn = q0[0] + np.arange(q_shape[0])
+        cn = -a * ((qn[:, None] - pn[None, :]) * d - disp_ne_m[t - 1, 0]) ** 2  # (Qn, Pn)
+        s2 = G.T[:, None, :] + cn[None, :, :]  # (Qe, Qn, Pn)
+        arg2 = np.argmax(s2, axis=2)  # (Qe, Qn)
+        H = np.take_along_axis(s2, arg2[:, :, None], axis=2)[:, :, 0]  # (Qe, Qn)
+        qi = nxt.ij - q0
+        best_pn = arg2[qi[:, 1], qi[:, 0]]
+        best_pe = arg1[best_pn, qi[:, 1]]
+        # map (pn, pe) box indices back to state indices of prev
+        lut = np.full(p_shape, -1, np.intp)
+        lut[prev.ij[:, 0] - p0[0], prev.ij[:, 1] - p0[1]] = np.arange(prev.ij.shape[0])
+        backs.append(lut[best_pn, best_pe])
+        delta = H[qi[:, 1], qi[:, 0]] + nxt.logpz
+    end = int(np.argmax(delta))
+    path = [end]
+    for b in reversed(backs):
+        path.append(int(b[path[-1]]))
     return np.asarray(path[::-1], np.intp), float(delta[end]), delta
 
 
@@ -261,7 +334,7 @@ class ViterbiMatcher(Matcher):
         spacing = self.cells.cell_m / cfg.o
         sig = np.array([_step_sigma_m(cfg, d, spacing) for d in dt])
         if cfg.search == "viterbi":
-            idx, logp, final = viterbi_path(layers, disp, sig, cfg.max_pairs_per_block)
+            idx, logp, final = viterbi_lattice(layers, disp, sig, spacing)
             end_pos = layers[-1].pos
         else:
             idx, logp, final = greedy_paths(layers, disp, sig)
