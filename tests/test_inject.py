@@ -200,3 +200,15 @@ def test_encoder_refuses_zero_zero():
 def test_config_validation(kw):
     with pytest.raises(ValueError):
         InjectConfig(**kw)
+
+
+def test_accuracy_never_better_than_the_receiver():
+    inj = Injector(InjectConfig(mode="shadow"))
+    inj.process(replace(fix(9.9), h_acc_m=0.9, v_acc_m=1.8))
+    rec = inj.process(state(sigma_h=0.2, sigma_v=0.3))[0]
+    assert rec.h_acc_m == 0.9 and rec.v_acc_m == 1.8 and rec.h_floor_m == 0.9
+    rec = inj.process(state(t_s=10.1, sigma_h=4.0, sigma_v=5.0))[0]  # coasting: the filter's growth shows
+    assert rec.h_acc_m == 4.0 and rec.v_acc_m == 5.0
+    inj2 = Injector(InjectConfig(mode="shadow", floor_to_receiver=False))
+    inj2.process(replace(fix(9.9), h_acc_m=0.9))
+    assert inj2.process(state(sigma_h=0.2))[0].h_acc_m == 0.2

@@ -8,7 +8,9 @@ Field by field (what ArduPilot's AP_GPS_MAV driver and EKF3 do with it, observed
 * ``vn``/``ve``/``vd``: NED velocity (m/s). Always filled: ArduPilot takes an ignored velocity as zero.
 * ``horiz_accuracy``/``vert_accuracy``/``speed_accuracy``: from the filter covariance (``sigma_h_m`` =
   sqrt(P_nn + P_ee), ``sigma_v_m`` = sqrt(P_dd), speed: sqrt(max(P_vn, P_ve))), so they grow while the
-  navigator coasts. ``hdop``/``vdop``: the same sigmas divided by an assumed user range error
+  navigator coasts. A Kalman filter fed with a receiver's time-correlated errors (multipath, ionosphere:
+  minutes of correlation) believes it averages them down; it cannot. So the position accuracies are never
+  reported better than the real receiver's own last reported accuracy (``floor_to_receiver``). ``hdop``/``vdop``: the same sigmas divided by an assumed user range error
   (``uere_m``); the HDOP must not be flagged as ignored or EKF3 never passes its GPS checks.
 * ``fix_type``: 3 (3D) only while sigma_h <= ``max_h_acc_3d_m`` and sigma_v <= ``max_v_acc_3d_m``;
   2 (2D) while sigma_h <= ``max_h_acc_2d_m``; 1 (no fix) beyond. ``satellites_visible``: the configured
@@ -75,6 +77,7 @@ class InjectConfig:
     gnss_timeout_s: float = 0.6  # receiver silent this long (vehicle time) counts as lost
     recover_s: float = 3.0  # receiver healthy this long before injection stops (gnss_loss)
     send_yaw: bool = False  # send the state's heading in ``yaw`` (only with a real heading source)
+    floor_to_receiver: bool = True  # accuracies >= the receiver's last reported h_acc/v_acc (or DOP x uere_m)
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -116,6 +119,7 @@ class GpsInputRecord(Event):
     h_acc_m: float
     v_acc_m: float
     speed_acc_mps: float
+    h_floor_m: float  # the receiver accuracy floor applied (0: none)
     hdop: float
     vdop: float
     satellites: int
@@ -220,6 +224,8 @@ class Injector:
         self._last_gnss_t: float | None = None
         self._healthy_since: float | None = None
         self._active = self.config.activate == "always"
+        self._floor_h_m = 0.0
+        self._floor_v_m = 0.0
 
     # -- stage interface ----------------------------------------------------------------------
     def process(self, item: Any) -> list[Event]:
@@ -271,6 +277,13 @@ class Injector:
             return []
         self._last_gnss_t = fix.t_s
         good = fix.fix_type >= FixType.FIX_3D and fix.has_position
+        if good and c.floor_to_receiver:
+            h = fix.h_acc_m if fix.h_acc_m is not None else (fix.hdop * c.uere_m if fix.hdop is not None else None)
+            v = fix.v_acc_m if fix.v_acc_m is not None else (fix.vdop * c.uere_m if fix.vdop is not None else None)
+            if h is not None and _finite(h) and h > 0:
+                self._floor_h_m = h
+            if v is not None and _finite(v) and v > 0:
+                self._floor_v_m = v
         if not good:
             self._healthy_since = None
             return self._set_active(fix.t_s, True, f"receiver fix_type {fix.fix_type}")
@@ -331,7 +344,7 @@ class Injector:
 
     def _record(self, s: FusedState) -> GpsInputRecord:
         c = self.config
-        sh, sv = s.sigma_h_m, s.sigma_v_m
+        sh, sv = max(s.sigma_h_m, self._floor_h_m), max(s.sigma_v_m, self._floor_v_m)
         if sh <= c.max_h_acc_3d_m and sv <= c.max_v_acc_3d_m:
             fix, why = int(FixType.FIX_3D), "within 3D bounds"
         elif sh <= c.max_h_acc_2d_m:
@@ -356,7 +369,7 @@ class Injector:
             t_s=s.t_s, mode=c.mode, sent=False, gps_id=c.gps_id, fix_type=fix, fix_reason=why,
             lat_deg=s.lat_deg, lon_deg=s.lon_deg, alt_msl_m=s.alt_msl_m,
             vel_n_mps=s.vel_n_mps, vel_e_mps=s.vel_e_mps, vel_d_mps=s.vel_d_mps,
-            h_acc_m=sh, v_acc_m=sv, speed_acc_mps=speed_acc, hdop=sh / c.uere_m, vdop=sv / c.uere_m,
+            h_acc_m=sh, v_acc_m=sv, speed_acc_mps=speed_acc, h_floor_m=self._floor_h_m, hdop=sh / c.uere_m, vdop=sv / c.uere_m,
             satellites=c.satellites if fix >= FixType.FIX_2D else 0, ignore_flags=flags,
             time_boot_us=units.us_from_s(boot_s), time_week=week, time_week_ms=week_ms, yaw_cdeg=yaw,
         )

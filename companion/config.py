@@ -1,0 +1,267 @@
+"""Settings of the live companion (``companion run``): a TOML file with command-line overrides.
+
+Every setting is checked when the process starts (:func:`load_config`): an unknown key, a wrong type, a
+value out of range or a missing file is a :class:`ConfigError` naming the key, raised before any link is
+opened. ``systemd/companion.toml`` is the annotated example; the defaults below are what an empty file gives.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from companion.inject.gps_input import InjectConfig
+
+
+class ConfigError(Exception):
+    """A setting is missing, unknown or invalid; ``str(err)`` names it."""
+
+
+#: Messages the runtime asks the autopilot for, with the rate (Hz) it asks for by default.
+DEFAULT_STREAMS_HZ: dict[str, float] = {
+    "GPS_RAW_INT": 10.0,
+    "RAW_IMU": 50.0,
+    "ATTITUDE": 10.0,
+    "SYSTEM_TIME": 1.0,
+}
+#: Messages SET_MESSAGE_INTERVAL may be asked for (what the decoder understands).
+STREAMABLE = ("GPS_RAW_INT", "GPS2_RAW", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "ATTITUDE", "SYSTEM_TIME")
+
+
+@dataclass(frozen=True)
+class LinkConfig:
+    """The MAVLink link to the autopilot and how the companion presents itself on it."""
+
+    connect: str = ""  # udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, or a serial device
+    baud: int = 115200
+    system_id: int = 1  # our system id (ArduPilot convention: the vehicle's own id for onboard components)
+    component_id: int = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
+    target_system: int = 0  # 0: the first autopilot heard
+    target_component: int = 0  # 0: the component of that first autopilot heartbeat
+    heartbeat_hz: float = 1.0
+    link_timeout_s: float = 3.0  # no message from the autopilot for this long: link lost
+    reconnect_min_s: float = 0.5  # back-off of reconnection attempts: doubles from min to max
+    reconnect_max_s: float = 8.0
+    signing_key_file: str = ""  # MAVLink2 signing: 32-byte key (raw, or 64 hex characters); "" = unsigned
+    allow_unsigned: bool = False  # with signing: also accept unsigned messages from the autopilot
+
+
+@dataclass(frozen=True)
+class StreamConfig:
+    """Rates requested with MAV_CMD_SET_MESSAGE_INTERVAL and the watch on what actually arrives."""
+
+    rates_hz: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_STREAMS_HZ))
+    check_period_s: float = 5.0  # measure arrival rates over this window
+    min_fraction: float = 0.5  # a rate below this fraction of the request is re-requested
+
+
+@dataclass(frozen=True)
+class RecordConfig:
+    out: str = "out/live.mcap"  # MCAP file; a directory: a new companion-<UTC time>.mcap in it per run
+    flush_interval_s: float = 1.0
+    fsync: bool = False
+
+
+@dataclass(frozen=True)
+class Config:
+    link: LinkConfig = field(default_factory=LinkConfig)
+    streams: StreamConfig = field(default_factory=StreamConfig)
+    inject: InjectConfig = field(default_factory=InjectConfig)
+    record: RecordConfig = field(default_factory=RecordConfig)
+    duration_s: float = 0.0  # stop after this long (0: run until SIGTERM/SIGINT)
+
+    def as_flat_dict(self) -> dict[str, str]:
+        """section.key -> value text, for the MCAP ``config`` metadata."""
+        out: dict[str, str] = {"duration_s": str(self.duration_s)}
+        for sec in ("link", "streams", "inject", "record"):
+            for k, v in dataclasses.asdict(getattr(self, sec)).items():
+                out[f"{sec}.{k}"] = str(v)
+        return out
+
+
+_SECTIONS = {"link": LinkConfig, "inject": InjectConfig, "record": RecordConfig}
+
+
+def _coerce(where: str, value: Any, default: Any) -> Any:
+    """Check ``value`` against the type of the default; ints are accepted for floats."""
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: expected true or false, got {value!r}")
+        return value
+    if isinstance(default, int):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+        return value
+    if isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}: expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ConfigError(f"{where}: must be finite, got {value!r}")
+        return float(value)
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: expected a string, got {value!r}")
+        return value
+    raise ConfigError(f"{where}: unsupported setting")  # pragma: no cover
+
+
+def _section(name: str, cls, table: Any):
+    if not isinstance(table, dict):
+        raise ConfigError(f"[{name}] must be a table")
+    defaults = cls()
+    known = {f.name for f in dataclasses.fields(cls)}
+    kw = {}
+    for k, v in table.items():
+        if k not in known:
+            raise ConfigError(f"[{name}] unknown setting {k!r} (known: {', '.join(sorted(known))})")
+        kw[k] = _coerce(f"{name}.{k}", v, getattr(defaults, k))
+    try:
+        return cls(**kw)
+    except (ValueError, TypeError) as err:
+        raise ConfigError(f"[{name}] {err}") from None
+
+
+def _streams(table: Any) -> StreamConfig:
+    if not isinstance(table, dict):
+        raise ConfigError("[streams] must be a table")
+    d = StreamConfig()
+    rates = dict(d.rates_hz)
+    kw: dict[str, Any] = {}
+    for k, v in table.items():
+        if k in ("check_period_s", "min_fraction"):
+            kw[k] = _coerce(f"streams.{k}", v, getattr(d, k))
+        elif k in STREAMABLE:
+            r = _coerce(f"streams.{k}", v, 1.0)
+            if r < 0 or r > 400:
+                raise ConfigError(f"streams.{k}: rate {r:g} Hz out of range 0..400 (0 = do not request)")
+            if r == 0:
+                rates.pop(k, None)
+            else:
+                rates[k] = r
+        else:
+            raise ConfigError(
+                f"[streams] unknown setting {k!r}: give a rate in Hz for one of {', '.join(STREAMABLE)}, "
+                f"or check_period_s / min_fraction"
+            )
+    kw["rates_hz"] = rates
+    cfg = StreamConfig(**kw)
+    if not cfg.check_period_s > 0:
+        raise ConfigError("streams.check_period_s must be > 0")
+    if not 0 < cfg.min_fraction <= 1:
+        raise ConfigError("streams.min_fraction must be in (0, 1]")
+    if "GPS_RAW_INT" not in rates:
+        raise ConfigError("streams.GPS_RAW_INT must be requested (> 0 Hz): the navigator needs the receiver")
+    return cfg
+
+
+def _validate(cfg: Config) -> Config:
+    from companion.sources.base import SourceError
+    from companion.sources.live import parse_url
+
+    L = cfg.link
+    if not L.connect:
+        raise ConfigError("link.connect is not set: give --connect URL or connect = \"...\" in [link]")
+    try:
+        parse_url(L.connect, L.baud)
+    except SourceError as err:
+        raise ConfigError(f"link.connect: {err}") from None
+    for k in ("system_id", "target_system"):
+        lo = 1 if k == "system_id" else 0
+        if not lo <= getattr(L, k) <= 255:
+            raise ConfigError(f"link.{k} must be in {lo}..255, got {getattr(L, k)}")
+    for k in ("component_id", "target_component"):
+        lo = 1 if k == "component_id" else 0
+        if not lo <= getattr(L, k) <= 255:
+            raise ConfigError(f"link.{k} must be in {lo}..255, got {getattr(L, k)}")
+    if L.baud <= 0:
+        raise ConfigError(f"link.baud must be > 0, got {L.baud}")
+    for k in ("heartbeat_hz", "link_timeout_s", "reconnect_min_s", "reconnect_max_s"):
+        if not getattr(L, k) > 0:
+            raise ConfigError(f"link.{k} must be > 0, got {getattr(L, k)}")
+    if L.reconnect_max_s < L.reconnect_min_s:
+        raise ConfigError("link.reconnect_max_s must be >= link.reconnect_min_s")
+    if L.signing_key_file:
+        load_signing_key(L.signing_key_file)  # fails now, not at the first message
+    if cfg.duration_s < 0:
+        raise ConfigError("duration_s must be >= 0")
+    if not cfg.record.out:
+        raise ConfigError("record.out must name a file or directory")
+    if not cfg.record.flush_interval_s > 0:
+        raise ConfigError("record.flush_interval_s must be > 0")
+    return cfg
+
+
+def load_signing_key(path: str) -> bytes:
+    """A MAVLink2 signing key: a file holding 32 raw bytes or 64 hexadecimal characters."""
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except OSError as err:
+        raise ConfigError(f"link.signing_key_file: cannot read {p}: {err.strerror or err}") from None
+    text = data.strip()
+    if len(text) == 64:
+        try:
+            return bytes.fromhex(text.decode("ascii"))
+        except (UnicodeDecodeError, ValueError):
+            pass
+    if len(data) == 32:
+        return data
+    raise ConfigError(f"link.signing_key_file: {p} must hold a 32-byte key (raw, or as 64 hex characters)")
+
+
+def load_config(path: str | os.PathLike | None = None, overrides: dict[str, Any] | None = None) -> Config:
+    """Read a TOML file (None: defaults only), apply ``overrides`` ("section.key" -> value), validate.
+
+    Override values are given as TOML values would be (int/float/bool/str); strings from the command
+    line are converted with :func:`parse_override`.
+    """
+    data: dict[str, Any] = {}
+    if path is not None:
+        p = Path(path)
+        try:
+            with p.open("rb") as f:
+                data = tomllib.load(f)
+        except FileNotFoundError:
+            raise ConfigError(f"config file {p} not found") from None
+        except OSError as err:
+            raise ConfigError(f"config file {p}: {err.strerror or err}") from None
+        except tomllib.TOMLDecodeError as err:
+            raise ConfigError(f"config file {p}: not valid TOML ({err})") from None
+    for key, value in (overrides or {}).items():
+        if value is None:
+            continue
+        sec, _, k = key.rpartition(".")
+        target = data.setdefault(sec, {}) if sec else data
+        if not isinstance(target, dict):
+            raise ConfigError(f"[{sec}] must be a table")
+        target[k] = value
+    unknown = set(data) - {"link", "streams", "inject", "record", "duration_s"}
+    if unknown:
+        raise ConfigError(f"unknown setting(s) {', '.join(sorted(unknown))} (sections: link, streams, inject, record)")
+    kw: dict[str, Any] = {}
+    for name, cls in _SECTIONS.items():
+        if name in data:
+            kw[name] = _section(name, cls, data[name])
+    if "streams" in data:
+        kw["streams"] = _streams(data["streams"])
+    if "duration_s" in data:
+        kw["duration_s"] = _coerce("duration_s", data["duration_s"], 0.0)
+    return _validate(Config(**kw))
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """``section.key=value`` from the command line; the value is read as a TOML value, else as a string."""
+    key, eq, raw = text.partition("=")
+    key = key.strip()
+    if not eq or not key:
+        raise ConfigError(f"--set {text!r}: expected section.key=value")
+    try:
+        value = tomllib.loads(f"v = {raw.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw.strip()
+    return key, value

@@ -1,0 +1,164 @@
+"""The live companion: one asyncio loop driving the link's events through the shared pipeline.
+
+``Runtime`` wires :class:`~companion.runtime.link.MavlinkLink` -> :func:`companion.pipeline.build_pipeline`
+(the same stages ``companion replay`` uses, plus the GPS_INPUT :class:`~companion.inject.Injector`) ->
+the MCAP recorder. Link events (:class:`~companion.runtime.link.LinkStatus`) are recorded beside the
+pipeline's output and reported to systemd as STATUS; READY is sent once the link manager runs, WATCHDOG
+every half watchdog period while both the loop and the link thread are alive (a hung link thread stops
+the pings and systemd restarts the service).
+
+Latency: for every GPS_INPUT that leaves, the time from the arrival of the bytes whose decoding caused
+it (``Batch.recv_perf_s``) to the return of the socket write is kept per triggering message type.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import signal
+import sys
+import time
+from collections import defaultdict, deque
+from typing import Any
+
+from companion.config import Config
+from companion.inject.gps_input import GpsInputRecord, Injector
+from companion.notify import Notifier
+from companion.pipeline import Pipeline, build_pipeline
+from companion.runtime.link import Batch, LinkStatus, MavlinkLink
+from companion.sources.base import SourceInfo
+
+_STOP = object()
+
+
+def percentile_ms(values, q: float) -> float:
+    import numpy as np
+
+    return float(np.percentile(np.asarray(values, dtype=float), q) * 1e3) if len(values) else float("nan")
+
+
+class Runtime:
+    def __init__(self, config: Config, sink: Any, *, notifier: Notifier | None = None, nav_config: Any = None, log=None) -> None:
+        self.config = config
+        self.sink = sink
+        self.link = MavlinkLink(config.link, config.streams)
+        sender = self.link.send if config.inject.mode == "inject" else None
+        self.injector = Injector(config.inject, sender=sender)
+        self.injector.on_sent = self._on_sent
+        self.pipeline: Pipeline = build_pipeline(sink, nav_config=nav_config, extra_stages=[self.injector])
+        self.notifier = notifier if notifier is not None else Notifier()
+        self.info = SourceInfo(kind="live", location=self.link.spec.url)
+        self.latency_s: dict[str, deque] = defaultdict(lambda: deque(maxlen=500_000))
+        self.link_log: list[LinkStatus] = []
+        self.batches = 0
+        self.stopped_by: str | None = None
+        self._rx: tuple[float, str] | None = None
+        self._last_batch_wall = time.monotonic()
+        self._log = log if log is not None else (lambda text: print(text, file=sys.stderr, flush=True))
+
+    # -- callbacks ----------------------------------------------------------------------------
+    def _on_sent(self, rec: GpsInputRecord) -> None:
+        if self._rx is not None:
+            recv, trigger = self._rx
+            self.latency_s[trigger].append(time.perf_counter() - recv)
+
+    def _on_status(self, st: LinkStatus) -> None:
+        self.link_log.append(st)
+        if self.sink is not None:
+            self.sink.write(st)
+        self._log(f"companion: link {st.state}: {st.detail}")
+        if st.state in ("autopilot", "lost", "reboot", "opened"):
+            self.notifier.status(f"link {st.state}: {st.detail}")
+
+    # -- loop ---------------------------------------------------------------------------------
+    async def run(self, duration_s: float | None = None) -> str | None:
+        """Run until SIGTERM/SIGINT or ``duration_s``; returns what stopped it."""
+        loop = asyncio.get_running_loop()
+        queue: asyncio.Queue = asyncio.Queue()
+        reasons: list[str] = []
+
+        def stop(reason: str) -> None:
+            reasons.append(reason)
+            queue.put_nowait(_STOP)
+
+        sigs = (signal.SIGINT, signal.SIGTERM)
+        for sig in sigs:
+            loop.add_signal_handler(sig, stop, sig.name)
+        if duration_s:
+            loop.call_later(duration_s, stop, f"--duration {duration_s:g} s")
+        self.link.start(loop, queue.put_nowait)
+        self.notifier.ready(f"link {self.link.spec.url} open, injector {self.config.inject.mode}")
+        housekeeping = asyncio.ensure_future(self._housekeeping())
+        try:
+            while True:
+                item = await queue.get()
+                if item is _STOP:
+                    break
+                if isinstance(item, Batch):
+                    self._rx = (item.recv_perf_s, item.trigger)
+                    for ev in item.events:
+                        self.pipeline.process(ev)
+                    self._rx = None
+                    self.batches += 1
+                    self._last_batch_wall = time.monotonic()
+                elif isinstance(item, LinkStatus):
+                    self._on_status(item)
+        finally:
+            for sig in sigs:
+                loop.remove_signal_handler(sig)
+            housekeeping.cancel()
+            self.notifier.stopping()
+            await asyncio.to_thread(self.link.stop)
+            while not queue.empty():  # statuses posted while stopping
+                item = queue.get_nowait()
+                if isinstance(item, LinkStatus):
+                    self._on_status(item)
+            self.pipeline.finish()
+            self.notifier.close()
+        self.stopped_by = reasons[0] if reasons else None
+        return self.stopped_by
+
+    async def _housekeeping(self) -> None:
+        """Watchdog pings and closing the MCAP chunk when the link goes quiet."""
+        period = self.notifier.watchdog_period_s
+        tick = min(period, 1.0) if period else 1.0
+        next_ping = 0.0
+        while True:
+            await asyncio.sleep(tick)
+            now = time.monotonic()
+            if period and now >= next_ping and self.link.thread_alive and now - self.link.alive_at < 2.0 * period:
+                self.notifier.watchdog()
+                next_ping = now + period
+            if now - self._last_batch_wall > 1.0 and hasattr(self.sink, "flush"):
+                self.sink.flush()  # nothing arriving: put what we have on disk
+
+    # -- reporting ----------------------------------------------------------------------------
+    def finalize_info(self) -> None:
+        """Decoder drop counts and link events into ``info.warnings``/``details`` (for metadata and summary)."""
+        for why, n in sorted(self.link.decoder.dropped.items()):
+            msg = f"dropped {n} messages: {why}"
+            if msg not in self.info.warnings:
+                self.info.warnings.append(msg)
+        self.info.details["messages_in"] = str(self.link.messages_in)
+        for k, v in sorted(self.link.counts.items()):
+            self.info.details[f"link.{k}"] = str(v)
+
+    def metadata(self) -> dict[str, str]:
+        meta = {"batches": str(self.batches), "messages_in": str(self.link.messages_in)}
+        for trig, vals in sorted(self.latency_s.items()):
+            meta[f"latency.{trig}.n"] = str(len(vals))
+            meta[f"latency.{trig}.p50_ms"] = f"{percentile_ms(vals, 50):.3f}"
+            meta[f"latency.{trig}.p99_ms"] = f"{percentile_ms(vals, 99):.3f}"
+        for k, v in sorted(self.link.counts.items()):
+            meta[f"link.{k}"] = str(v)
+        return meta
+
+    def summary_lines(self) -> list[str]:
+        lines = []
+        ls = ", ".join(f"{k} {v}" for k, v in sorted(self.link.counts.items()))
+        lines.append(f"link         {self.link.messages_in} messages in; events: {ls or 'none'}")
+        for trig, vals in sorted(self.latency_s.items()):
+            lines.append(
+                f"latency      {trig} -> GPS_INPUT: p50 {percentile_ms(vals, 50):.2f} ms, "
+                f"p99 {percentile_ms(vals, 99):.2f} ms over {len(vals)}"
+            )
+        return lines

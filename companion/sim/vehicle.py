@@ -1,0 +1,496 @@
+"""A simulated ArduPilot vehicle on a MAVLink link, for hardware-in-the-loop tests of ``companion run``.
+
+It plays a telemetry log (``.tlog``) or a generated flight (:mod:`companion.sim.flight`) in real time
+(or ``speed`` times faster) as the autopilot would stream it -- HEARTBEAT, SYSTEM_TIME, GPS_RAW_INT,
+RAW_IMU / SCALED_IMU2, ATTITUDE, STATUSTEXT -- and behaves like one towards the companion:
+
+* streams other than HEARTBEAT/STATUSTEXT flow only once requested with MAV_CMD_SET_MESSAGE_INTERVAL
+  (``streams="requested"``, ArduPilot with SRn_ = 0) or as the source has them (``"all"``); a request is
+  answered with COMMAND_ACK and honoured by decimating the source stream (interval -1 stops it);
+* faults on the playback clock: GNSS cut (GPS_RAW_INT with fix_type 1 and lat = lon = 0, as ArduPilot
+  sends it), IMU stop, link drop (silence both ways; a TCP server closes the connection and stops
+  listening), reboot (silence, then boot time restarts at 0 and the requested intervals are forgotten),
+  and ``noise``: garbage bytes, frames with a bad CRC, another system's GPS, NaN attitude, fix_type 0 at
+  0,0, duplicated and out-of-order IMU samples;
+* every GPS_INPUT received is written to a JSON-lines record with the truth at the message's time and
+  the horizontal error (truth: the flight's trajectory, or the log's own receiver positions).
+
+Time: the playback clock is the source's boot time (log receive time for a tlog); the wall clock only
+paces it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import select
+import signal
+import socket
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from companion import units
+from companion.geodesy import LocalFrame
+from companion.inject.gps_input import decode_gps_input
+
+_EPOCH_US = 1e15
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
+#: streams an ArduPilot sends whatever was requested
+_ALWAYS = ("HEARTBEAT", "STATUSTEXT")
+_STREAMED = ("SYSTEM_TIME", "GPS_RAW_INT", "GPS2_RAW", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "ATTITUDE")
+
+
+@dataclass
+class Item:
+    play_s: float
+    msg: Any
+    src: tuple[int, int]
+
+
+@dataclass
+class Playback:
+    """Messages on the playback clock and the truth position as a function of it."""
+
+    items: list[Item]
+    truth: Callable[[float], tuple[float, float, float] | None]  # play_s -> (lat, lon, alt_msl) or None
+    description: str
+
+    @property
+    def duration_s(self) -> float:
+        return self.items[-1].play_s if self.items else 0.0
+
+
+def _v2(msg):
+    """A pymavlink message as the MAVLink 2 ardupilotmega class (extension fields 0 when absent)."""
+    cls = mavlink2.mavlink_map[msg.get_msgId()]
+    obj = cls(*[getattr(msg, f, 0) for f in cls.fieldnames])
+    return obj
+
+
+def playback_from_flight(flight=None) -> Playback:
+    """A generated flight (default: the project's sample flight); truth from its trajectory."""
+    from companion.sim.flight import sample_flight
+    from companion.sim.mavlink_out import telemetry_messages
+
+    flight = flight or sample_flight()
+    items = [Item(o.boot_us * 1e-6, o.msg, (o.src_system, o.src_component)) for o in telemetry_messages(flight, gcs=True)]
+    profile = flight.profile
+
+    def truth(t: float):
+        if not 0.0 <= t <= profile.duration_s:
+            return None
+        tr = profile.sample(t)
+        return float(tr.lat_deg[0]), float(tr.lon_deg[0]), float(tr.alt_msl_m[0])
+
+    return Playback(items, truth, f"generated flight ({flight.duration_s:.0f} s, seed {flight.seed})")
+
+
+def playback_from_tlog(path: str | Path) -> Playback:
+    """A telemetry log; truth from the log's own GPS_RAW_INT positions (interpolated, 3D fixes only)."""
+    from pymavlink import mavutil
+
+    log = mavutil.mavlogfile(str(path), robust_parsing=True)
+    items: list[Item] = []
+    autopilot: tuple[int, int] | None = None
+    gps_t, gps_pos = [], []
+    t0 = None
+    while True:
+        m = log.recv_msg()
+        if m is None:
+            break
+        mtype = m.get_type()
+        if mtype == "BAD_DATA" or mtype not in _ALWAYS + _STREAMED:
+            continue
+        src = (m.get_srcSystem(), m.get_srcComponent())
+        if autopilot is None:
+            if mtype == "HEARTBEAT" and m.autopilot != mavlink2.MAV_AUTOPILOT_INVALID and m.type != mavlink2.MAV_TYPE_GCS:
+                autopilot = src
+            else:
+                continue
+        if src != autopilot:
+            continue
+        t = float(m._timestamp)
+        if t0 is None:
+            t0 = t
+        play = t - t0
+        if mtype == "GPS_RAW_INT" and m.fix_type >= 3 and not (m.lat == 0 and m.lon == 0):
+            gps_t.append(play)
+            gps_pos.append((units.deg_from_degE7(m.lat), units.deg_from_degE7(m.lon), units.m_from_mm(m.alt)))
+        items.append(Item(play, _v2(m), src))
+    if not items:
+        raise ValueError(f"{path}: no autopilot messages")
+    gt = np.asarray(gps_t)
+    gp = np.asarray(gps_pos)
+
+    def truth(t: float):
+        if len(gt) < 2 or not gt[0] <= t <= gt[-1]:
+            return None
+        i = int(np.searchsorted(gt, t))
+        i = min(max(i, 1), len(gt) - 1)
+        if gt[i] - gt[i - 1] > 2.0:  # no truth inside the log's own outages
+            return None
+        w = (t - gt[i - 1]) / (gt[i] - gt[i - 1])
+        p = gp[i - 1] + w * (gp[i] - gp[i - 1])
+        return float(p[0]), float(p[1]), float(p[2])
+
+    return Playback(items, truth, f"tlog {Path(path).name}")
+
+
+@dataclass
+class Faults:
+    """Fault windows on the playback clock (seconds)."""
+
+    gnss_off: tuple[float, float] | None = None
+    imu_off: tuple[float, float] | None = None
+    link_drop: tuple[float, float] | None = None
+    reboot_at: float | None = None
+    reboot_downtime_s: float = 2.0
+    forget_streams_at: float | None = None  # drop every requested interval (an autopilot losing its stream setup)
+    noise: bool = False
+
+
+def _in(w, t) -> bool:
+    return w is not None and w[0] <= t < w[1]
+
+
+@dataclass
+class SimStats:
+    sent: Counter = field(default_factory=Counter)
+    received: Counter = field(default_factory=Counter)
+    gps_input: int = 0
+    gps_input_signed: int = 0
+    requests: list = field(default_factory=list)
+    connections: int = 0
+    reboots: int = 0
+
+
+class VehicleSim:
+    """Serve a playback on ``listen`` (``tcpin:HOST:PORT`` like SITL, or ``udpout:HOST:PORT``)."""
+
+    def __init__(
+        self,
+        playback: Playback,
+        listen: str,
+        *,
+        faults: Faults | None = None,
+        speed: float = 1.0,
+        start_s: float = 0.0,
+        end_s: float | None = None,
+        streams: str = "requested",
+        record: str | Path | None = None,
+        key: bytes | None = None,
+        seed: int = 0,
+    ) -> None:
+        if streams not in ("requested", "all"):
+            raise ValueError("streams must be 'requested' or 'all'")
+        self.playback = playback
+        self.scheme, host, port = listen.split(":")
+        if self.scheme not in ("tcpin", "udpout"):
+            raise ValueError(f"{listen}: the simulator serves tcpin:HOST:PORT or udpout:HOST:PORT")
+        self.addr = (host, int(port))
+        self.faults = faults or Faults()
+        self.speed = speed
+        self.start_s = start_s
+        self.end_s = end_s if end_s is not None else playback.duration_s
+        self.streams = streams
+        self.key = key
+        self.rng = np.random.default_rng(seed)
+        self.stats = SimStats()
+        self.intervals_us: dict[int, float] = {}
+        self.last_sent: dict[str, float] = {}
+        self.boot_shift_s = 0.0
+        self.boot_play = (0.0, 0.0)  # (boot_s, play_s) of the last message with a boot time
+        self._senders: dict[tuple[int, int], Any] = {}
+        self._rx = self._mav(None)
+        self._record = open(record, "w") if record else None  # noqa: SIM115
+        self._stop = False
+        self._listen_sock = None
+        self._conn = None  # TCP client socket / UDP socket
+        self._recent_imu: list[Any] = []
+
+    # -- I/O ----------------------------------------------------------------------------------
+    def _mav(self, src):
+        mav = mavlink2.MAVLink(None, srcSystem=src[0] if src else 1, srcComponent=src[1] if src else 1)
+        mav.robust_parsing = True
+        if self.key is not None:
+            mav.signing.secret_key = self.key
+            mav.signing.link_id = 1
+            mav.signing.timestamp = int(max(time.time() - 1420070400, 0) * 1e5)
+            mav.signing.sign_outgoing = src is not None
+        return mav
+
+    def _open(self) -> None:
+        if self.scheme == "tcpin":
+            s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            s.bind(self.addr)
+            s.listen(1)
+            self._listen_sock = s
+        else:
+            s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            s.bind(("127.0.0.1", 0))
+            self._conn = s
+
+    def _close_link(self) -> None:
+        if self.scheme == "tcpin":
+            for s in (self._conn, self._listen_sock):
+                if s is not None:
+                    s.close()
+            self._conn = self._listen_sock = None
+        self._rx = self._mav(None)
+
+    def _write(self, data: bytes) -> None:
+        try:
+            if self.scheme == "tcpin":
+                if self._conn is not None:
+                    self._conn.sendall(data)
+            else:
+                self._conn.sendto(data, self.addr)
+        except OSError:
+            if self.scheme == "tcpin" and self._conn is not None:
+                self._conn.close()
+                self._conn = None
+
+    def _send(self, msg, src: tuple[int, int]) -> None:
+        mav = self._senders.get(src)
+        if mav is None:
+            mav = self._senders[src] = self._mav(src)
+        self._write(bytes(msg.pack(mav)))
+        self.stats.sent[msg.get_type()] += 1
+
+    def _poll(self, timeout_s: float, play_s: float, silent: bool) -> None:
+        socks = []
+        if self.scheme == "tcpin":
+            if self._conn is not None:
+                socks.append(self._conn)
+            elif self._listen_sock is not None:
+                socks.append(self._listen_sock)
+        elif self._conn is not None:
+            socks.append(self._conn)
+        if not socks:
+            time.sleep(timeout_s)
+            return
+        r, _, _ = select.select(socks, [], [], max(0.0, timeout_s))
+        if not r:
+            return
+        s = r[0]
+        if s is self._listen_sock:
+            c, _ = s.accept()
+            c.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self._conn = c
+            self._rx = self._mav(None)
+            self.stats.connections += 1
+            self._log({"event": "connected", "play_s": play_s})
+            return
+        try:
+            data = s.recv(65536)
+        except OSError:
+            data = b""
+        if not data and self.scheme == "tcpin":
+            s.close()
+            self._conn = None
+            return
+        if silent:
+            return
+        for m in self._rx.parse_buffer(data) or []:
+            self._handle(m, play_s)
+
+    def _handle(self, m, play_s: float) -> None:
+        mtype = m.get_type()
+        self.stats.received[mtype] += 1
+        if mtype == "COMMAND_LONG" and m.command == MAV_CMD_SET_MESSAGE_INTERVAL and m.target_system in (0, 1):
+            msg_id, interval = int(m.param1), float(m.param2)
+            self.intervals_us[msg_id] = interval
+            self.stats.requests.append((play_s, msg_id, interval))
+            self._send(mavlink2.MAVLink_command_ack_message(m.command, 0, 0, 0, m.get_srcSystem(), m.get_srcComponent()), (1, 1))
+        elif mtype == "GPS_INPUT":
+            self.stats.gps_input += 1
+            signed = bool(getattr(m, "_signed", False))
+            self.stats.gps_input_signed += signed
+            d = decode_gps_input(m)
+            boot_s = d["time_boot_us"] * 1e-6
+            t = boot_s + (self.boot_play[1] - self.boot_play[0])  # boot time -> playback time
+            tr = self.playback.truth(t)
+            rec = {"event": "gps_input", "play_s": play_s, "state_play_s": t, "signed": signed, **d}
+            if tr is not None:
+                frame = LocalFrame(tr[0], tr[1], tr[2])
+                ned = frame.to_ned_m(d["lat_deg"], d["lon_deg"], d["alt_msl_m"])
+                rec["truth"] = tr
+                rec["err_h_m"] = float(math.hypot(ned[0], ned[1]))
+                rec["err_v_m"] = float(abs(ned[2]))
+            self._log(rec)
+
+    def _log(self, rec: dict) -> None:
+        if self._record is not None:
+            self._record.write(json.dumps(rec) + "\n")
+            self._record.flush()
+
+    # -- playback -----------------------------------------------------------------------------
+    def _wanted(self, mtype: str, play_s: float) -> bool:
+        if mtype in _ALWAYS:
+            return True
+        if self.streams == "all" and not self.intervals_us:
+            return True
+        interval = self.intervals_us.get(getattr(mavlink2, f"MAVLINK_MSG_ID_{mtype}"), None)
+        if interval is None or interval < 0:
+            return self.streams == "all" and interval is None
+        if interval == 0:
+            return True  # 0: the autopilot's default rate = as the source has it
+        last = self.last_sent.get(mtype)
+        return last is None or (play_s - last) * 1e6 >= 0.9 * interval
+
+    def _retime(self, msg) -> None:
+        """Shift boot-time fields by the reboot offset; remember the boot/playback relation."""
+        shift = self.boot_shift_s
+        if hasattr(msg, "time_boot_ms"):
+            boot = msg.time_boot_ms * 1e-3 - shift
+            msg.time_boot_ms = max(0, int(round(boot * 1e3)))
+            return boot
+        if hasattr(msg, "time_usec") and 0 < msg.time_usec < _EPOCH_US:
+            boot = msg.time_usec * 1e-6 - shift
+            msg.time_usec = max(0, int(round(boot * 1e6)))
+            return boot
+        return None
+
+    def _noise(self, play_s: float) -> None:
+        """One round of bad input (about once a second)."""
+        rng = self.rng
+        self._write(rng.bytes(int(rng.integers(5, 60))))  # garbage
+        hb = bytearray(mavlink2.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3).pack(self._senders.get((1, 1)) or self._mav((1, 1))))
+        hb[-3] ^= 0x5A  # bad CRC (unsigned frame: CRC is the last two bytes)
+        self._write(bytes(hb))
+        boot = self.boot_play[0] + (play_s - self.boot_play[1])
+        other = mavlink2.MAVLink_gps_raw_int_message(int(boot * 1e6), 3, 100000000, 200000000, 10000, 100, 100, 0, 0, 12)
+        self._send(other, (2, 1))  # another vehicle's receiver: must be ignored
+        self._send(mavlink2.MAVLink_attitude_message(max(0, int(boot * 1e3)), math.nan, 0.0, 0.0, 0, 0, 0), (1, 1))
+        self._send(mavlink2.MAVLink_gps_raw_int_message(int(boot * 1e6), 0, 0, 0, 0, 65535, 65535, 0, 65535, 0), (1, 1))
+        if len(self._recent_imu) >= 2:
+            self._send(self._recent_imu[-1], (1, 1))  # duplicate
+            self._send(self._recent_imu[0], (1, 1))  # out of order
+        self.stats.sent["noise"] += 1
+
+    def stop(self, *_args) -> None:
+        self._stop = True
+
+    def run(self) -> SimStats:
+        f = self.faults
+        self._open()
+        self._log({"event": "start", "description": self.playback.description, "start_s": self.start_s, "speed": self.speed})
+        items = [it for it in self.playback.items if self.start_s <= it.play_s <= self.end_s]
+        wall0 = time.monotonic()
+
+        def play_now() -> float:
+            return self.start_s + (time.monotonic() - wall0) * self.speed
+
+        next_noise = self.start_s + 1.0
+        dropped = rebooting = gnss_logged = forgot = False
+        i = 0
+        try:
+            while i < len(items) and not self._stop:
+                now = play_now()
+                # link drop: close everything, reopen at the end of the window
+                if _in(f.link_drop, now) and not dropped:
+                    dropped = True
+                    self._close_link()
+                    self._log({"event": "link_drop", "play_s": now})
+                elif dropped and not _in(f.link_drop, now):
+                    dropped = False
+                    if self.scheme == "tcpin":
+                        self._open()
+                    self._log({"event": "link_back", "play_s": now})
+                if f.reboot_at is not None and not rebooting and f.reboot_at <= now < f.reboot_at + f.reboot_downtime_s and self.stats.reboots == 0:
+                    rebooting = True
+                    self._log({"event": "reboot", "play_s": now})
+                elif rebooting and now >= f.reboot_at + f.reboot_downtime_s:
+                    rebooting = False
+                    self.stats.reboots += 1
+                    self.boot_shift_s = f.reboot_at + f.reboot_downtime_s
+                    self.intervals_us.clear()
+                    self.last_sent.clear()
+                    self._log({"event": "booted", "play_s": now})
+                if f.forget_streams_at is not None and now >= f.forget_streams_at and not forgot:
+                    forgot = True
+                    self.intervals_us.clear()
+                    self._log({"event": "forgot_streams", "play_s": now})
+                if _in(f.gnss_off, now) and not gnss_logged:
+                    gnss_logged = True
+                    self._log({"event": "gnss_off", "play_s": now})
+                silent = dropped or rebooting
+                while i < len(items) and items[i].play_s <= now:
+                    it = items[i]
+                    i += 1
+                    if silent:
+                        continue
+                    mtype = it.msg.get_type()
+                    if mtype in ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2") and _in(f.imu_off, it.play_s):
+                        continue
+                    if not self._wanted(mtype, it.play_s):
+                        continue
+                    msg = it.msg
+                    if mtype == "GPS_RAW_INT" and _in(f.gnss_off, it.play_s):
+                        msg = mavlink2.MAVLink_gps_raw_int_message(msg.time_usec, 1, 0, 0, 0, 65535, 65535, 0, 65535, 0)
+                    boot = self._retime(msg)
+                    if boot is not None:
+                        self.boot_play = (boot, it.play_s)
+                    self._send(msg, it.src)
+                    self.last_sent[mtype] = it.play_s
+                    if mtype == "RAW_IMU":
+                        self._recent_imu = (self._recent_imu + [msg])[-5:]
+                if f.noise and not silent and now >= next_noise and self.boot_play != (0.0, 0.0):
+                    self._noise(now)
+                    next_noise = now + 1.0
+                nxt = items[i].play_s if i < len(items) else now
+                self._poll(min(0.005, max(0.0, (nxt - play_now()) / self.speed)), now, silent)
+        finally:
+            self._log({"event": "end", "play_s": play_now(), "gps_input": self.stats.gps_input,
+                       "gps_input_signed": self.stats.gps_input_signed, "requests": len(self.stats.requests),
+                       "connections": self.stats.connections, "received": dict(self.stats.received),
+                       "sent": dict(self.stats.sent)})
+            self._close_link()
+            if self._conn is not None:
+                self._conn.close()
+            if self._record is not None:
+                self._record.close()
+        return self.stats
+
+
+def run_sim(args) -> int:
+    """``companion sim`` entry point (argparse namespace from companion.cli)."""
+    from companion.config import load_signing_key
+
+    if args.log:
+        playback = playback_from_tlog(args.log)
+    else:
+        from companion.sim.flight import SimConfig, sample_profile, simulate_flight, SAMPLE_SEED
+
+        flight = simulate_flight(
+            sample_profile(), args.seed if args.seed is not None else SAMPLE_SEED,
+            SimConfig(gnss_rate_hz=args.gnss_hz, imu_rate_hz=args.imu_hz, attitude_rate_hz=10.0),
+        )
+        playback = playback_from_flight(flight)
+    faults = Faults(
+        gnss_off=tuple(args.gnss_off) if args.gnss_off else None,
+        imu_off=tuple(args.imu_off) if args.imu_off else None,
+        link_drop=tuple(args.link_drop) if args.link_drop else None,
+        reboot_at=args.reboot_at,
+        reboot_downtime_s=args.reboot_downtime,
+        noise=args.noise,
+    )
+    key = load_signing_key(args.signing_key_file) if args.signing_key_file else None
+    sim = VehicleSim(
+        playback, args.listen, faults=faults, speed=args.speed, start_s=args.start, end_s=args.end,
+        streams=args.streams, record=args.record, key=key, seed=args.seed or 0,
+    )
+    signal.signal(signal.SIGTERM, sim.stop)
+    signal.signal(signal.SIGINT, sim.stop)
+    print(f"sim: {playback.description} on {args.listen} from {args.start:g} s at x{args.speed:g}", flush=True)
+    st = sim.run()
+    print(f"sim: sent {sum(st.sent.values())} messages, received {st.gps_input} GPS_INPUT "
+          f"({st.gps_input_signed} signed), {len(st.requests)} interval requests, {st.connections} connections", flush=True)
+    return 0
