@@ -151,39 +151,61 @@ def _damaged(source) -> bool:
 
 
 def cmd_run(args) -> int:
+    """The live companion: settings from --config (TOML) with command-line overrides, then the runtime."""
+    from companion.config import ConfigError, load_config, parse_override
     from companion.pipeline import wall_time_s
     from companion.record import Recorder
-    from companion.sources.live import LiveSource
+    from companion.runtime import Runtime
 
-    source = LiveSource(args.connect, args.baud, source_system=args.system_id, source_component=args.component_id)
-    out = Path(args.out) if args.out else _default_out("live")
+    overrides = {
+        "link.connect": args.connect,
+        "link.baud": args.baud,
+        "link.system_id": args.system_id,
+        "link.component_id": args.component_id,
+        "link.signing_key_file": args.signing_key_file,
+        "inject.mode": args.inject,
+        "inject.gps_id": args.gps_id,
+        "record.out": args.out,
+        "duration_s": args.duration,
+    }
+    try:
+        for text in args.set or []:
+            key, value = parse_override(text)
+            overrides[key] = value
+        config = load_config(args.config, overrides)
+    except ConfigError as err:
+        raise UsageError(str(err)) from None
+    out = Path(config.record.out)
+    if config.record.out.endswith("/") or out.is_dir():
+        import datetime
+
+        out = out / datetime.datetime.now(datetime.timezone.utc).strftime("companion-%Y%m%dT%H%M%SZ.mcap")
     out.parent.mkdir(parents=True, exist_ok=True)
-    recorder = Recorder(out)
-    pipeline = _build_pipeline(recorder, args)
-    config = {"command": "run", "connect": args.connect, "baud": args.baud, "companion_version": __version__}
-
-    async def main() -> str | None:
-        drive = asyncio.ensure_future(_drive(source, pipeline, recorder, realtime_factor=None, bar=None))
-        if args.duration:
-            done, _ = await asyncio.wait({drive}, timeout=args.duration)
-            if not done:
-                drive.cancel()
-                try:
-                    await drive
-                except asyncio.CancelledError:
-                    pass
-                return f"--duration {args.duration:g} s"
-        return await drive
-
+    recorder = Recorder(out, flush_interval_s=config.record.flush_interval_s, fsync=config.record.fsync)
+    runtime = Runtime(config, recorder)
+    meta = {"command": "run", "companion_version": __version__, **config.as_flat_dict()}
     t0 = wall_time_s()
     stopped_by = None
     try:
-        stopped_by = asyncio.run(main())
+        stopped_by = asyncio.run(runtime.run(config.duration_s or None))
     finally:
-        _finish_record(recorder, source, pipeline, config, stopped_by)
-    _print_summary(source, pipeline, out, stopped_by, wall_time_s() - t0)
+        runtime.finalize_info()
+        recorder.add_metadata("runtime", runtime.metadata())
+        _finish_record(recorder, runtime, runtime.pipeline, meta, stopped_by)
+    _print_summary(runtime, runtime.pipeline, out, stopped_by, wall_time_s() - t0)
+    for line in runtime.summary_lines():
+        print(line)
     # a service stopped on purpose (SIGTERM, --duration) exits cleanly
     return EXIT_INTERRUPTED if stopped_by == "SIGINT" else EXIT_OK
+
+
+def cmd_sim(args) -> int:
+    from companion.sim.vehicle import run_sim
+
+    try:
+        return run_sim(args)
+    except ValueError as err:
+        raise UsageError(str(err)) from None
 
 
 def cmd_inspect(args) -> int:
@@ -213,14 +235,39 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=cmd_replay)
 
-    n = sub.add_parser("run", help="run on a live MAVLink link")
-    n.add_argument("--connect", required=True, help="udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or a serial device")
+    n = sub.add_parser("run", help="run on a live MAVLink link (the companion service)")
+    n.add_argument("--config", help="TOML settings file (e.g. /etc/companion/companion.toml); options below override it")
+    n.add_argument("--connect", help="udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, tcpin:HOST:PORT or a serial device")
     n.add_argument("--baud", type=int, default=None, help="serial baud rate (default 115200)")
-    n.add_argument("--out", help="MCAP file to write (default: out/live.mcap)")
-    n.add_argument("--system-id", type=int, default=1, help="our MAVLink system id (default 1)")
-    n.add_argument("--component-id", type=int, default=191, help="our MAVLink component id (default 191, onboard computer)")
+    n.add_argument("--out", help="MCAP file, or a directory for one file per run (default: out/live.mcap)")
+    n.add_argument("--system-id", type=int, default=None, help="our MAVLink system id (default 1)")
+    n.add_argument("--component-id", type=int, default=None, help="our MAVLink component id (default 191, onboard computer)")
+    n.add_argument("--inject", choices=("off", "shadow", "inject"), default=None, help="GPS_INPUT mode (default shadow)")
+    n.add_argument("--gps-id", type=int, default=None, help="GPS instance fed by GPS_INPUT: 0 (GPS1_TYPE=14) or 1 (GPS2_TYPE=14)")
+    n.add_argument("--signing-key-file", default=None, help="MAVLink2 signing key (32 bytes raw or 64 hex characters)")
+    n.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help="override any setting, e.g. inject.activate=gnss_loss")
     n.add_argument("--duration", type=_positive_float, default=None, help="stop after this many seconds")
     n.set_defaults(func=cmd_run)
+
+    v = sub.add_parser("sim", help="simulated ArduPilot vehicle on a MAVLink link, for hardware-in-the-loop tests")
+    v.add_argument("--listen", default="tcpin:127.0.0.1:5760", help="tcpin:HOST:PORT (like SITL) or udpout:HOST:PORT")
+    v.add_argument("--log", help="play this .tlog (default: a generated flight, the sample flight's profile)")
+    v.add_argument("--gnss-hz", type=_positive_float, default=10.0, help="generated flight: GNSS rate (default 10)")
+    v.add_argument("--imu-hz", type=_positive_float, default=50.0, help="generated flight: IMU rate (default 50)")
+    v.add_argument("--seed", type=int, default=None, help="generated flight / noise seed")
+    v.add_argument("--speed", type=_positive_float, default=1.0, help="playback speed (1 = real time)")
+    v.add_argument("--start", type=float, default=0.0, help="start at this playback time (s)")
+    v.add_argument("--end", type=float, default=None, help="stop at this playback time (s)")
+    v.add_argument("--streams", choices=("requested", "all"), default="requested", help="send streams only once requested (default), or all")
+    v.add_argument("--gnss-off", type=float, nargs=2, metavar=("FROM", "TO"), help="GNSS cut window (playback s)")
+    v.add_argument("--imu-off", type=float, nargs=2, metavar=("FROM", "TO"), help="IMU stop window (playback s)")
+    v.add_argument("--link-drop", type=float, nargs=2, metavar=("FROM", "TO"), help="link drop window (playback s)")
+    v.add_argument("--reboot-at", type=float, default=None, help="reboot at this playback time (s)")
+    v.add_argument("--reboot-downtime", type=float, default=2.0, help="silence during a reboot (s, default 2)")
+    v.add_argument("--noise", action="store_true", help="bad input once a second: garbage, bad CRC, other systems, NaN, duplicates")
+    v.add_argument("--signing-key-file", default=None, help="sign what we send, accept only signed frames")
+    v.add_argument("--record", help="JSON-lines record of every GPS_INPUT received (with truth and error)")
+    v.set_defaults(func=cmd_sim)
 
     i = sub.add_parser("inspect", help="summarise an MCAP record: topics, counts, time span")
     i.add_argument("file")
