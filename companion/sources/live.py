@@ -1,10 +1,9 @@
 """A live MAVLink link as a source: ``udpin:``, ``udpout:``, ``tcp:``, or a serial device with a baud rate.
 
-pymavlink's blocking I/O runs in one reader thread; decoded events cross into the asyncio loop through
-a queue (``call_soon_threadsafe``), so the loop never blocks on the link. The reader also sends a
-HEARTBEAT as an onboard controller once a second, which is what makes an autopilot (or a ``udpout:``
-peer) start talking to us. Events are stamped by the autopilot's boot time; only messages without one
-use the receive time (``time.monotonic``), which is this edge's own clock.
+``parse_url`` checks a connection string. The link itself (reader thread, heartbeat, stream requests,
+reconnection) is :class:`companion.runtime.link.MavlinkLink`; :class:`LiveSource` adapts it to the
+:class:`~companion.sources.base.Source` interface. Events are stamped by the autopilot's boot time; only
+messages without one use the receive time (``time.monotonic``), which is this edge's own clock.
 """
 
 from __future__ import annotations
@@ -12,14 +11,11 @@ from __future__ import annotations
 import asyncio
 import os
 import re
-import threading
-import time
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
 
 from companion.events import Event
 from companion.sources.base import Source, SourceError, SourceInfo
-from companion.sources.mavlink_decode import MavlinkDecoder
 
 MAV_TYPE_ONBOARD_CONTROLLER = 18
 MAV_AUTOPILOT_INVALID = 8
@@ -66,6 +62,12 @@ def parse_url(url: str, baud: int | None = None) -> LinkSpec:
 
 
 class LiveSource(Source):
+    """A live link as a plain :class:`Source` (events only), on the runtime's link manager.
+
+    ``companion run`` uses :class:`companion.runtime.Runtime`, which also records link events and sends
+    GPS_INPUT; this adaptor is for code that wants ``async for ev in source`` over a link.
+    """
+
     def __init__(
         self,
         url: str,
@@ -75,71 +77,35 @@ class LiveSource(Source):
         source_component: int = MAV_COMP_ID_ONBOARD_COMPUTER,
         heartbeat_period_s: float = 1.0,
     ) -> None:
+        from companion.config import LinkConfig, StreamConfig
+        from companion.runtime.link import MavlinkLink
+
         self.spec = parse_url(url, baud)
         self.info = SourceInfo(kind="live", location=self.spec.url)
         if self.spec.baud:
             self.info.details["baud"] = str(self.spec.baud)
-        self.source_system = source_system
-        self.source_component = source_component
-        self.heartbeat_period_s = heartbeat_period_s
-        self.decoder = MavlinkDecoder()
-        self.messages_in = 0
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._conn = None
+        cfg = LinkConfig(
+            connect=url, baud=self.spec.baud or 115200, system_id=source_system, component_id=source_component,
+            heartbeat_hz=1.0 / heartbeat_period_s,
+        )
+        self.link = MavlinkLink(cfg, StreamConfig())
+        self.decoder = self.link.decoder
 
-    def _connect(self):
-        from pymavlink import mavutil
-
-        kw = dict(source_system=self.source_system, source_component=self.source_component, autoreconnect=True)
-        if self.spec.baud:
-            kw["baud"] = self.spec.baud
-        try:
-            return mavutil.mavlink_connection(self.spec.url, **kw)
-        except OSError as err:
-            raise SourceError(f"{self.spec.url}: cannot open link ({err.strerror or err})") from None
-        except Exception as err:  # noqa: BLE001 - pymavlink raises bare Exceptions for bad links
-            raise SourceError(f"{self.spec.url}: cannot open link ({err})") from None
-
-    def _reader(self, loop: asyncio.AbstractEventLoop, queue: asyncio.Queue) -> None:
-        conn = self._conn
-        next_hb = 0.0
-        try:
-            while not self._stop.is_set():
-                now = time.monotonic()
-                if now >= next_hb:
-                    try:
-                        conn.mav.heartbeat_send(MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, 0, 0)
-                    except OSError:
-                        pass  # udpin before the peer is known, or link down: try again next period
-                    next_hb = now + self.heartbeat_period_s
-                msg = conn.recv_match(blocking=True, timeout=0.1)
-                if msg is None:
-                    continue
-                self.messages_in += 1
-                evs = self.decoder.decode(msg, time.monotonic())
-                if evs:
-                    loop.call_soon_threadsafe(queue.put_nowait, evs)
-        except Exception as err:  # noqa: BLE001 - report any link failure to the consumer
-            loop.call_soon_threadsafe(queue.put_nowait, SourceError(f"{self.spec.url}: link failed ({err})"))
-        finally:
-            loop.call_soon_threadsafe(queue.put_nowait, None)
+    @property
+    def messages_in(self) -> int:
+        return self.link.messages_in
 
     async def _iterate(self) -> AsyncIterator[Event]:
-        loop = asyncio.get_running_loop()
-        self._conn = await asyncio.to_thread(self._connect)
+        from companion.runtime.link import Batch
+
         queue: asyncio.Queue = asyncio.Queue()
-        self._thread = threading.Thread(target=self._reader, args=(loop, queue), name="mavlink-reader", daemon=True)
-        self._thread.start()
+        self.link.start(asyncio.get_running_loop(), queue.put_nowait)
         try:
             while True:
                 item = await queue.get()
-                if item is None:
-                    return
-                if isinstance(item, Exception):
-                    raise item
-                for ev in item:
-                    yield ev
+                if isinstance(item, Batch):
+                    for ev in item.events:
+                        yield ev
         finally:
             await self.aclose()
 
@@ -147,16 +113,7 @@ class LiveSource(Source):
         return self._iterate()
 
     async def aclose(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            await asyncio.to_thread(self._thread.join, 2.0)
-            self._thread = None
-        if self._conn is not None:
-            try:
-                self._conn.close()
-            except Exception:  # noqa: BLE001
-                pass
-            self._conn = None
+        await asyncio.to_thread(self.link.stop)
         for why, n in sorted(self.decoder.dropped.items()):
             msg = f"dropped {n} messages: {why}"
             if msg not in self.info.warnings:
