@@ -70,6 +70,16 @@ class NavigatorConfig:
     ``predictor_sigma_scale``: a predictor point extrapolates the last fix, so its error is correlated with
     that fix, which the filter has already used; treating it as independent makes the filter
     overconfident (position NEES ~2 per axis on simulated flights). Its sigma is scaled by this factor.
+    ``predictor_decorrelate``: the k-th point fused after a fix has its variance multiplied by k: the
+    points of one recursion share the anchor's and the neighbours' error, so 80 points in an 8 s blockage
+    must not count as 80 independent measurements (that pulled the INS towards the predictor's drift).
+    ``gnss_sigma_model``: truth and product frame are the receiver's own solution, whose error wanders
+    slowly (metres over minutes) but is smooth from fix to fix. "short_term" updates with the
+    fix-to-fix noise (``short_term_sigma_*`` x max(1, HDOP)) so the filter follows the receiver instead of
+    averaging it; "accuracy" uses the receiver's accuracy (h_acc, or HDOP x UERE), right for white fix
+    noise. The innovation gate always uses the accuracy sigma, so a glitch is judged on the receiver's own
+    error scale. ``fuse_attitude_yaw``: off by default: in the Erle log the autopilot's heading is ~90 deg
+    from the heading the GNSS-aided INS settles at, and fusing it ruins the fill; the tilt is fused.
     ``gnss_delay_s``: ArduPilot's EKF assumes ~0.2 s between a u-blox measurement epoch and its arrival;
     the measurement model compares a fix stamped t with the INS at t - delay (0 disables).
     """
@@ -86,11 +96,16 @@ class NavigatorConfig:
     fuse_predictor: bool = True
     predictor_min_age_s: float = 0.0
     predictor_sigma_scale: float = 2.0
+    predictor_decorrelate: bool = True
     fuse_attitude: bool = True
+    fuse_attitude_yaw: bool = False
     fuse_gnss_velocity: bool = True
     gnss_delay_s: float = 0.0
     gate_chi2: float = CHI2_3DOF_999
     gate_reset_s: float = 5.0
+    gnss_sigma_model: str = "short_term"  # "short_term" | "accuracy"
+    short_term_sigma_h_m: float = 0.3
+    short_term_sigma_v_m: float = 0.5
     uere_h_m: float = 1.5
     uere_v_m: float = 2.5
     default_sigma_h_m: float = 2.5
@@ -113,6 +128,8 @@ class NavigatorConfig:
             raise ValueError("rates must be positive")
         if self.reorder_window_s < 0:
             raise ValueError("reorder_window_s must be >= 0")
+        if self.gnss_sigma_model not in ("short_term", "accuracy"):
+            raise ValueError("gnss_sigma_model must be 'short_term' or 'accuracy'")
 
 
 _PRIO = {ImuSample: 0, Attitude: 1, GnssFix: 2}
@@ -143,6 +160,8 @@ class Navigator:
         self._tick_dt = 1.0 / c.output_rate_hz
         self._next_tick: int | None = None
         self._last_fix_t: float | None = None
+        self._n_pred_fused = 0
+        self._pred_anchor: float | None = None
         self._reject_since: float | None = None
         # INS filter
         self.ins: StrapdownIns | None = None
@@ -242,7 +261,8 @@ class Navigator:
             self._f_n += 1
 
     # ------------------------------------------------------------------ GNSS
-    def _fix_sigmas(self, ev: GnssFix) -> tuple[float, float]:
+    def _fix_sigmas(self, ev: GnssFix) -> tuple[float, float, float, float]:
+        """(update sigma h, v, gate sigma h, v). The gate always uses the receiver's accuracy."""
         c = self.config
         if ev.h_acc_m is not None and ev.h_acc_m > 0:
             sh = ev.h_acc_m
@@ -258,7 +278,11 @@ class Navigator:
             sv = ev.hdop * c.uere_v_m
         else:
             sv = c.default_sigma_v_m
-        return max(sh, c.min_sigma_h_m), max(sv, c.min_sigma_h_m)
+        gh, gv = max(sh, c.min_sigma_h_m), max(sv, c.min_sigma_h_m)
+        if c.gnss_sigma_model == "short_term":
+            scale = max(1.0, ev.hdop) if ev.hdop is not None and ev.hdop > 0 else 2.0
+            return c.short_term_sigma_h_m * scale, c.short_term_sigma_v_m * scale, gh, gv
+        return gh, gv, gh, gv
 
     def _to_ned(self, lat_deg: float, lon_deg: float, alt_m: float) -> tuple[float, float, float]:
         return (
@@ -283,20 +307,20 @@ class Navigator:
             self._rn_cos = (rn + ev.alt_msl_m) * math.cos(math.radians(ev.lat_deg))
             self._out.append(FrameInfo(t, ev.lat_deg, ev.lon_deg, ev.alt_msl_m))
         z = self._to_ned(ev.lat_deg, ev.lon_deg, ev.alt_msl_m)
-        sh, sv = self._fix_sigmas(ev)
+        sh, sv, gh, gv = self._fix_sigmas(ev)
         vel = None
         if ev.vel_n_mps is not None and ev.vel_e_mps is not None:
             vel = (ev.vel_n_mps, ev.vel_e_mps, ev.vel_d_mps if ev.vel_d_mps is not None else math.nan)
         self._update_mode(t, ev, z, vel)
         accepted = True
         if self.mode == "ins":
-            accepted = self._ins_position_update(t, z, sh, sv, "gnss_pos")
+            accepted = self._ins_position_update(t, z, sh, sv, "gnss_pos", (gh, gv))
             if accepted and vel is not None and c.fuse_gnss_velocity and math.isfinite(vel[2]):
                 self._ins_velocity_update(t, vel, c.gnss_vel_sigma_mps)
         if self._kin is None:
             self._kin_init(t, z, vel)
         else:
-            acc_k = self._kin_update(t, z, sh, sv, "gnss_pos", record=self.mode != "ins")
+            acc_k = self._kin_update(t, z, sh, sv, "gnss_pos", record=self.mode != "ins", gate_sigma=(gh, gv))
             if self.mode != "ins":
                 accepted = acc_k
         if accepted:
@@ -391,9 +415,10 @@ class Navigator:
         self._kf.predict(F=phi, Q=np.diag(q))
         self._kf_t = t
 
-    def _ins_apply(self, H: np.ndarray, z: np.ndarray, R: np.ndarray, kind: str, t: float) -> bool:
+    def _ins_apply(self, H: np.ndarray, z: np.ndarray, R: np.ndarray, kind: str, t: float,
+                   R_gate: np.ndarray | None = None) -> bool:
         kf = self._kf
-        S = H @ kf.P @ H.T + R
+        S = H @ kf.P @ H.T + (R if R_gate is None else np.maximum(R, R_gate))
         nis = float(z @ np.linalg.solve(S, z))
         ok = nis <= self.config.gate_chi2
         self._out.append(
@@ -415,12 +440,13 @@ class Navigator:
         dt = t - ins.t_s - self.config.gnss_delay_s
         return np.array([n + ins.vn * dt, e + ins.ve * dt, d + ins.vd * dt])
 
-    def _ins_position_update(self, t: float, z, sh: float, sv: float, kind: str) -> bool:
+    def _ins_position_update(self, t: float, z, sh: float, sv: float, kind: str, gate_sigma=None) -> bool:
         self._ins_predict(max(t, self._kf_t))
         H = np.zeros((3, 15))
         H[:, 0:3] = np.eye(3)
         y = np.asarray(z) - self._ins_pos_at(t)
-        ok = self._ins_apply(H, y, np.diag([sh**2, sh**2, sv**2]), kind, t)
+        R_gate = None if gate_sigma is None else np.diag([gate_sigma[0] ** 2, gate_sigma[0] ** 2, gate_sigma[1] ** 2])
+        ok = self._ins_apply(H, y, np.diag([sh**2, sh**2, sv**2]), kind, t, R_gate)
         if kind == "gnss_pos":
             ok = self._gate_bookkeeping(t, ok, y, sh, sv)
         if ok:
@@ -464,7 +490,8 @@ class Navigator:
         y = 0.5 * np.array([E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]])
         H = np.zeros((3, 15))
         H[:, 6:9] = np.eye(3)
-        R = np.diag([c.att_sigma_tilt_rad**2, c.att_sigma_tilt_rad**2, c.att_sigma_yaw_rad**2])
+        s_yaw = c.att_sigma_yaw_rad if c.fuse_attitude_yaw else 1e3  # 1e3 rad: no heading information
+        R = np.diag([c.att_sigma_tilt_rad**2, c.att_sigma_tilt_rad**2, s_yaw**2])
         self._ins_apply(H, y, R, "attitude", ev.t_s)
 
     # ------------------------------------------------------------------ kinematic filter
@@ -492,7 +519,7 @@ class Navigator:
         self._kin.predict(F=F, Q=Q)
         self._kin_t = t
 
-    def _kin_update(self, t: float, z, sh: float, sv: float, kind: str, record: bool) -> bool:
+    def _kin_update(self, t: float, z, sh: float, sv: float, kind: str, record: bool, gate_sigma=None) -> bool:
         self._kin_predict(max(t, self._kin_t))
         kf = self._kin
         H = np.zeros((3, 6))
@@ -501,7 +528,8 @@ class Navigator:
         x = kf.x.ravel()
         y = np.asarray(z, dtype=float) - (x[0:3] - x[3:6] * self.config.gnss_delay_s)
         R = np.diag([sh**2, sh**2, sv**2])
-        S = H @ kf.P @ H.T + R
+        gh, gv = gate_sigma if gate_sigma is not None else (sh, sv)
+        S = H @ kf.P @ H.T + np.maximum(R, np.diag([gh**2, gh**2, gv**2]))
         nis = float(y @ np.linalg.solve(S, y))
         ok = nis <= self.config.gate_chi2
         if record:
@@ -546,7 +574,11 @@ class Navigator:
                     PredictorPoint(tg, *p.ned_m, lat, lon, alt, p.sigma_h_m, p.sigma_v_m, p.age_s, p.method)
                 )
                 if c.fuse_predictor:
-                    sh, sv = p.sigma_h_m * c.predictor_sigma_scale, p.sigma_v_m * c.predictor_sigma_scale
+                    # points from one anchor share one error: inflate R by the count fused since the fix
+                    self._n_pred_fused = self._n_pred_fused + 1 if self._pred_anchor == self._last_fix_t else 1
+                    self._pred_anchor = self._last_fix_t
+                    infl = c.predictor_sigma_scale * (math.sqrt(self._n_pred_fused) if c.predictor_decorrelate else 1.0)
+                    sh, sv = p.sigma_h_m * infl, p.sigma_v_m * infl
                     if self.mode == "ins":
                         ok = self._ins_position_update(tg, p.ned_m, sh, sv, "predictor")
                     else:

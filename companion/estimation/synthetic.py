@@ -27,7 +27,8 @@ class SimNoise:
     gyro_bias_radps: tuple[float, float, float] = (0.002, -0.001, 0.0015)
     gnss_std_h_m: float = 1.5
     gnss_std_v_m: float = 2.5
-    gnss_corr_tau_s: float = 0.0  # > 0: first-order Gauss-Markov fix error (receivers' errors wander)
+    gnss_corr_tau_s: float = 30.0  # > 0: first-order Gauss-Markov fix error (a receiver's error wanders);
+    # 0: white fix error (what the KF's "accuracy" GNSS model assumes)
     gnss_white_m: float = 0.05  # white part added to a correlated error
     gnss_vel_std_mps: float = 0.3
     att_std_tilt_rad: float = 0.03
