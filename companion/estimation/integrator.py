@@ -585,9 +585,6 @@ class Navigator:
                         ok = self._kin_update(tg, p.ned_m, sh, sv, "predictor", True)
                     if ok:
                         self._used.add("predictor")
-                    # keep the fallback filter bridging too
-                    if self.mode == "ins" and self._kin is not None:
-                        self._kin_update(tg, p.ned_m, sh, sv, "predictor", False)
         if self.mode == "init":
             return
         if self.mode == "ins":
@@ -609,8 +606,6 @@ class Navigator:
             a = self._att
             rpy = (a.roll_rad, a.pitch_rad, a.yaw_rad) if a is not None and tg - a.t_s < 1.0 else (math.nan,) * 3
             P = self._kin.P
-        if self._kin is not None and self.mode == "ins":
-            self._kin_predict(tg)
         diag = tuple(float(v) for v in np.diag(P))
         lat, lon, alt = self._from_ned(n, e, d)
         used = "+".join(sorted(self._used, key=("gnss", "predictor").index)) or "none"
