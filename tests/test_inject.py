@@ -38,7 +38,7 @@ def state(t_s=10.0, sigma_h=1.5, sigma_v=2.5, lat=-35.3632, lon=149.1652, **kw) 
 def fix(t_s, fix_type=3, instance=0) -> GnssFix:
     has = fix_type >= 2
     return GnssFix(
-        t_s, fix_type, -35.36 if has else None, 149.16 if has else None, 600.0 if has else None, None, None, None,
+        t_s, fix_type, -35.3632 if has else None, 149.1652 if has else None, 600.0 if has else None, None, None, None,
         None, None, 10, 0.8, 1.2, None, None, None, None, None, instance,
     )
 
@@ -212,3 +212,29 @@ def test_accuracy_never_better_than_the_receiver():
     inj2 = Injector(InjectConfig(mode="shadow", floor_to_receiver=False))
     inj2.process(replace(fix(9.9), h_acc_m=0.9))
     assert inj2.process(state(sigma_h=0.2))[0].h_acc_m == 0.2
+
+
+def test_stale_states_after_a_gap_are_not_sent():
+    from companion.events import ImuSample
+
+    inj = Injector(InjectConfig(mode="shadow"))
+    inj.process(ImuSample(t_s=20.0, accel_frd_mps2=(0.0, 0.0, -9.8), gyro_frd_radps=(0.0, 0.0, 0.0), imu_index=0))
+    out = inj.process(state(t_s=12.0))  # a navigator catching up 8 s late
+    assert isinstance(out[0], InjectorDrop) and out[0].reason.startswith("stale")
+    assert isinstance(inj.process(state(t_s=19.9))[0], GpsInputRecord)
+
+
+def test_cross_check_against_the_receiver():
+    inj = Injector(InjectConfig(mode="shadow"))
+    rx = replace(fix(9.95), lat_deg=-35.3632, lon_deg=149.1652, h_acc_m=1.0)
+    inj.process(rx)
+    # 1 m away (within the gate: 13.8 x (1.5^2 + 1^2) + (5 m/s x 0.2 s)^2 -> 6.8 m)
+    ok = inj.process(state(t_s=10.0, lat=-35.3632 + 1.0 / 111_000))
+    assert isinstance(ok[0], GpsInputRecord)
+    bad = inj.process(state(t_s=10.1, lat=-35.3632 + 15.0 / 111_000))
+    assert isinstance(bad[0], InjectorDrop) and bad[0].reason == "inconsistent with the receiver"
+    # no newer receiver fix to check against: stays refused until a check passes
+    held = inj.process(state(t_s=10.7, lat=-35.3632))
+    assert isinstance(held[0], InjectorDrop) and "not yet re-checked" in held[0].reason
+    inj.process(replace(rx, t_s=10.75))
+    assert isinstance(inj.process(state(t_s=10.8, lat=-35.3632))[0], GpsInputRecord)

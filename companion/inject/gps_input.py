@@ -22,8 +22,12 @@ Field by field (what ArduPilot's AP_GPS_MAV driver and EKF3 do with it, observed
 * ``gps_id``: the GPS instance fed (0 for GPS1_TYPE = 14, 1 for GPS2_TYPE = 14).
 
 Integrity: a state with a non-finite or out-of-range field, lat = lon = 0, an implausible speed, a
-non-positive or non-finite sigma, or a time not after the previous one is never sent; it is counted and
-recorded on ``/inject/dropped`` with the reason. Every GPS_INPUT built (sent in ``inject`` mode, or what
+non-positive or non-finite sigma, or a time not after the previous one is never sent; nor a *stale*
+state (more than ``max_lag_s`` behind the newest sensor event: a navigator catching up after a gap would
+otherwise emit a burst of old positions), nor one that disagrees with a recent 3D fix of the real
+receiver (horizontal distance d with d^2 > ``consistency_chi2`` (sigma_state^2 + sigma_receiver^2) +
+(``receiver_lag_s`` |v|)^2; chi-square 2 dof 99.9 % = 13.8). After such a disagreement nothing is sent
+until a check passes again. Each refusal is counted and recorded on ``/inject/dropped`` with the reason. Every GPS_INPUT built (sent in ``inject`` mode, or what
 would be sent in ``shadow`` mode) is recorded on ``/inject/gps_input``.
 
 Activation: ``activate = "always"`` sends every valid solution (the set-up where the companion is the
@@ -41,7 +45,8 @@ from typing import Any, ClassVar
 
 from companion import units
 from companion.estimation.outputs import FusedState
-from companion.events import Event, FixType, GnssFix, Reboot, SystemTime
+from companion.events import Attitude, Event, FixType, GnssFix, ImuSample, Reboot, SystemTime
+from companion.geodesy import LocalFrame
 
 #: GPS time = UTC + leap seconds; GPS epoch 1980-01-06T00:00:00Z as a Unix time.
 GPS_EPOCH_UNIX_S = 315964800
@@ -78,6 +83,10 @@ class InjectConfig:
     recover_s: float = 3.0  # receiver healthy this long before injection stops (gnss_loss)
     send_yaw: bool = False  # send the state's heading in ``yaw`` (only with a real heading source)
     floor_to_receiver: bool = True  # accuracies >= the receiver's last reported h_acc/v_acc (or DOP x uere_m)
+    max_lag_s: float = 0.5  # a state this far behind the newest sensor event is stale: not sent
+    consistency_chi2: float = 13.8  # gate of the receiver cross-check (chi-square, 2 dof, 99.9 %)
+    consistency_window_s: float = 0.5  # cross-check against receiver fixes at most this old
+    receiver_lag_s: float = 0.2  # receiver fixes may lag the state by this much (allowance |v| x lag)
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -96,7 +105,7 @@ class InjectConfig:
             raise ValueError("max_v_acc_3d_m must be > 0")
         if not 6 <= self.satellites <= 254:
             raise ValueError(f"satellites must be in 6..254 (ArduPilot needs >= 6 for a usable fix), not {self.satellites}")
-        for k in ("uere_m", "max_speed_mps", "gnss_timeout_s", "recover_s"):
+        for k in ("uere_m", "max_speed_mps", "gnss_timeout_s", "recover_s", "max_lag_s", "consistency_chi2", "consistency_window_s"):
             if not getattr(self, k) > 0:
                 raise ValueError(f"{k} must be > 0")
 
@@ -226,11 +235,16 @@ class Injector:
         self._active = self.config.activate == "always"
         self._floor_h_m = 0.0
         self._floor_v_m = 0.0
+        self._newest_input_t = -math.inf
+        self._rx_fix: tuple[float, float, float, float] | None = None  # t, lat, lon, sigma_h of the receiver
+        self._inconsistent = False
 
     # -- stage interface ----------------------------------------------------------------------
     def process(self, item: Any) -> list[Event]:
         if self.config.mode == "off":
             return []
+        if isinstance(item, (ImuSample, GnssFix, Attitude)) and _finite(item.t_s):
+            self._newest_input_t = max(self._newest_input_t, item.t_s)
         if isinstance(item, FusedState):
             return self._on_state(item)
         if isinstance(item, GnssFix):
@@ -284,6 +298,9 @@ class Injector:
                 self._floor_h_m = h
             if v is not None and _finite(v) and v > 0:
                 self._floor_v_m = v
+        if good:
+            h = fix.h_acc_m if fix.h_acc_m is not None else (fix.hdop * c.uere_m if fix.hdop is not None else c.uere_m)
+            self._rx_fix = (fix.t_s, fix.lat_deg, fix.lon_deg, h if _finite(h) and h > 0 else c.uere_m)
         if not good:
             self._healthy_since = None
             return self._set_active(fix.t_s, True, f"receiver fix_type {fix.fix_type}")
@@ -326,6 +343,11 @@ class Injector:
         why = _invalid(s, c)
         if why:
             return out + self._drop(s.t_s, why)
+        if s.t_s < self._newest_input_t - c.max_lag_s:
+            return out + self._drop(s.t_s, f"stale: more than {c.max_lag_s:g} s behind the sensors")
+        why = self._cross_check(s)
+        if why:
+            return out + self._drop(s.t_s, why)
         rec = self._record(s)
         self._last_out_t = s.t_s
         self.built += 1
@@ -341,6 +363,23 @@ class Injector:
                 self.dropped["link not ready"] += 1
         out.append(rec)
         return out
+
+    def _cross_check(self, s: FusedState) -> str:
+        """Why the state disagrees with the real receiver ("" when it agrees or cannot be checked)."""
+        c = self.config
+        fx = self._rx_fix
+        if fx is None or not 0.0 <= s.t_s - fx[0] <= c.consistency_window_s:
+            return "inconsistent with the receiver (not yet re-checked)" if self._inconsistent else ""
+        dt = s.t_s - fx[0]
+        n, e, _ = LocalFrame(fx[1], fx[2], 0.0).to_ned_m(s.lat_deg, s.lon_deg, 0.0)
+        dn, de = float(n) - s.vel_n_mps * dt, float(e) - s.vel_e_mps * dt
+        d2 = dn * dn + de * de
+        speed2 = s.vel_n_mps**2 + s.vel_e_mps**2
+        allowed2 = c.consistency_chi2 * (s.sigma_h_m**2 + fx[3] ** 2) + speed2 * c.receiver_lag_s**2
+        self._inconsistent = d2 > allowed2
+        if self._inconsistent:
+            return "inconsistent with the receiver"
+        return ""
 
     def _record(self, s: FusedState) -> GpsInputRecord:
         c = self.config

@@ -12,6 +12,7 @@ RAW_IMU / SCALED_IMU2, ATTITUDE, STATUSTEXT -- and behaves like one towards the 
   listening), reboot (silence, then boot time restarts at 0 and the requested intervals are forgotten),
   and ``noise``: garbage bytes, frames with a bad CRC, another system's GPS, NaN attitude, fix_type 0 at
   0,0, duplicated and out-of-order IMU samples;
+* as TCP server (``tcpin``, like SITL) it starts its clock when the first client connects;
 * every GPS_INPUT received is written to a JSON-lines record with the truth at the message's time and
   the horizontal error (truth: the flight's trajectory, or the log's own receiver positions).
 
@@ -69,8 +70,8 @@ class Playback:
 def _v2(msg):
     """A pymavlink message as the MAVLink 2 ardupilotmega class (extension fields 0 when absent)."""
     cls = mavlink2.mavlink_map[msg.get_msgId()]
-    obj = cls(*[getattr(msg, f, 0) for f in cls.fieldnames])
-    return obj
+    vals = [getattr(msg, f, 0) for f in cls.fieldnames]
+    return cls(*[v.encode("latin-1", "replace") if isinstance(v, str) else v for v in vals])
 
 
 def playback_from_flight(flight=None) -> Playback:
@@ -370,9 +371,11 @@ class VehicleSim:
         self._send(other, (2, 1))  # another vehicle's receiver: must be ignored
         self._send(mavlink2.MAVLink_attitude_message(max(0, int(boot * 1e3)), math.nan, 0.0, 0.0, 0, 0, 0), (1, 1))
         self._send(mavlink2.MAVLink_gps_raw_int_message(int(boot * 1e6), 0, 0, 0, 0, 65535, 65535, 0, 65535, 0), (1, 1))
-        if len(self._recent_imu) >= 2:
-            self._send(self._recent_imu[-1], (1, 1))  # duplicate
-            self._send(self._recent_imu[0], (1, 1))  # out of order
+        if len(self._recent_imu) >= 2 and self.boot_play[0] - self._recent_imu[0].time_usec * 1e-6 < 0.5:
+            # a duplicate and a sample ~0.1 s out of order (only while the IMU streams: a sample seconds
+            # old looks like an autopilot reboot to companion.timebase, which needs a 2 s jump back)
+            self._send(self._recent_imu[-1], (1, 1))
+            self._send(self._recent_imu[0], (1, 1))
         self.stats.sent["noise"] += 1
 
     def stop(self, *_args) -> None:
@@ -383,6 +386,10 @@ class VehicleSim:
         self._open()
         self._log({"event": "start", "description": self.playback.description, "start_s": self.start_s, "speed": self.speed})
         items = [it for it in self.playback.items if self.start_s <= it.play_s <= self.end_s]
+        if self.scheme == "tcpin":
+            # like ArduPilot SITL on 5760: the vehicle's clock starts once something connects
+            while self._conn is None and not self._stop:
+                self._poll(0.05, self.start_s, False)
         wall0 = time.monotonic()
 
         def play_now() -> float:
