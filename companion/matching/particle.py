@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from companion.geodesy import EARTH_RATE_RADPS, WGS84_A_M
 
@@ -231,6 +232,7 @@ class GravityParticleFilter:
     # -- optimisers on the position states ------------------------------------------------------------------
     def _gf(self, p: np.ndarray, fit) -> np.ndarray:
         g = self.cfg.gf
+        n = p.shape[0]
         for _ in range(self.cfg.iterations):
             ll = fit(p)
             best = p[np.argmax(ll)]  # central dust
@@ -238,12 +240,16 @@ class GravityParticleFilter:
             db = np.hypot(d_b[:, 0], d_b[:, 1])
             P = g.ka * d_b / np.maximum(db, 1e-9)[:, None]  # eq. 22
             P[db < 1e-9] = 0.0
-            diff = p[:, None, :] - p[None, :, :]  # x_i - x_j
-            dij = np.hypot(diff[..., 0], diff[..., 1])
-            near = (dij < g.d_th_m) & (dij > 1e-9)
-            mag = np.where(near, g.kr * (1.0 / np.maximum(dij, 1e-9) ** 2 - 1.0 / g.d_th_m**2) / np.maximum(dij, 1e-9), 0.0)
-            F = (mag[..., None] * diff).sum(axis=1)  # eq. 23-24
-            p = p + np.clip(F + P, -g.l_max_m, g.l_max_m)  # eq. 25
+            F = P
+            pairs = cKDTree(p).query_pairs(g.d_th_m, output_type="ndarray")  # only pairs within d_th repel
+            if pairs.size:
+                i, j = pairs[:, 0], pairs[:, 1]
+                diff = p[i] - p[j]
+                d = np.maximum(np.hypot(diff[:, 0], diff[:, 1]), 1e-9)
+                f = (g.kr * (1.0 / d**2 - 1.0 / g.d_th_m**2) / d)[:, None] * diff  # eq. 23, on i away from j
+                F = F + np.column_stack([np.bincount(i, f[:, 0], n) - np.bincount(j, f[:, 0], n),
+                                         np.bincount(i, f[:, 1], n) - np.bincount(j, f[:, 1], n)])  # eq. 24
+            p = p + np.clip(F, -g.l_max_m, g.l_max_m)  # eq. 25
         return p
 
     def _pso(self, p: np.ndarray, fit) -> np.ndarray:
@@ -265,27 +271,28 @@ class GravityParticleFilter:
 
     def _apo(self, p: np.ndarray, fit) -> np.ndarray:
         a = self.cfg.apo
-        v = np.zeros_like(p)
+        n = p.shape[0]
+        v = np.zeros(n, complex)
+        z = p[:, 0] + 1j * p[:, 1]
+        others = ~np.eye(n, dtype=bool)
         for _ in range(self.cfg.iterations):
-            ll = fit(p)
+            ll = fit(np.column_stack([z.real, z.imag]))
             lo, hi = ll.min(), ll.max()
             m = np.exp((ll - hi) / max(hi - lo, 1e-12))  # masses in (0, 1], best = 1
-            diff = p[None, :, :] - p[:, None, :]  # x_j - x_i
-            dij = np.hypot(diff[..., 0], diff[..., 1])
-            unit = diff / np.maximum(dij, 1e-9)[..., None]
-            within = (dij < a.r_s_m) & (dij > 1e-9)
+            diff = z[None, :] - z[:, None]  # x_j - x_i
+            dij = np.abs(diff)
+            unit = diff / np.maximum(dij, 1e-9)
+            within = (dij < a.r_s_m) & others
             better = ll[None, :] > ll[:, None]
             k_att = np.where(dij > a.d_th_m, a.ka1, a.ka2)
-            mag = np.where(within & better, k_att * m[None, :], 0.0) - np.where(within & ~better, a.kb * m[None, :], 0.0)
-            F = (mag[..., None] * unit).sum(axis=1)
-            # the best particle is also pulled by nobody; all others feel the best particle even beyond r_s
+            mag = (np.where(within & better, k_att, 0.0) - np.where(within & ~better, a.kb, 0.0)) * m[None, :]
             ib = int(np.argmax(ll))
-            far = ~within[:, ib] & (np.arange(p.shape[0]) != ib)
-            F[far] += a.ka1 * unit[far, ib]
-            v = a.kb * v + F / np.maximum(m, 1e-3)[:, None]
-            v = np.clip(v, -a.l_max_m, a.l_max_m)
-            p = p + v
-        return p
+            mag[:, ib] = np.where(np.arange(n) != ib, np.where(within[:, ib], mag[:, ib], a.ka1), 0.0)  # the best pulls all
+            F = (mag * unit).sum(axis=1)
+            v = a.kb * v + F / np.maximum(m, 1e-3)
+            v = np.clip(v.real, -a.l_max_m, a.l_max_m) + 1j * np.clip(v.imag, -a.l_max_m, a.l_max_m)
+            z = z + v
+        return np.column_stack([z.real, z.imag])
 
     # -- one filter period -------------------------------------------------------------------------------
     def step(self, t_s: float, ins_ne_m, ins_vel_ne_mps, y, f_ne_mps2=(0.0, 0.0)) -> PfEstimate:
