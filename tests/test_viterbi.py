@@ -111,3 +111,17 @@ def test_bad_config_and_offmap_failure():
     win = MatchWindow.of(np.arange(6.0), np.full((6, 2), 1e7), np.zeros((6, 2)), np.zeros(6))
     res = ViterbiMatcher(None, ViterbiConfig(n=3), cell_map=cmap).match(win)
     assert not res.ok and "no valid map cell" in res.reason
+
+
+def test_interp_subcells_and_prior_variants_run_and_name():
+    rng = np.random.default_rng(2)
+    cmap = _rough_cells(2)
+    win, true = _window(cmap, rng, T=6, sigma_z=0.0, ins_off=(300.0, 200.0))
+    cfg = ViterbiConfig(n=7, o=3, alpha=0.0, T=6, subcell_values="interp", prior_sigma_m=5000.0, representation_error=False)
+    assert cfg.name == "RVBMP-2i+prior"
+    res = ViterbiMatcher(None, cfg, cell_map=cmap).match(win)
+    assert res.ok and res.track_ne_m.shape == (6, 2)
+    # a tight prior pins the first state to the cell around the INS position
+    tight = ViterbiMatcher(None, ViterbiConfig(n=7, o=1, alpha=0.0, T=6, prior_sigma_m=1.0, sigma_v_mps=1e4,
+                                               representation_error=False), cell_map=cmap).match(win)
+    assert np.hypot(*(tight.track_ne_m[0] - win.ins_ne_m[0])) <= cmap.cell_m * 0.75

@@ -18,6 +18,13 @@ The paper does not give p_v's form; we take a Gaussian on the displacement with
 sigma_step^2 = (sigma_v dt)^2 + 2 (d / sqrt(12))^2, the second term being the quantisation of a path that
 may only pass through (sub-)cell centres of spacing d.
 
+prior_sigma_m (ours, not the paper's): the paper's first state is uniform over B_1; a Gaussian prior of this
+sigma around the INS position keeps the path from jumping to a distant look-alike when the map is smooth.
+
+subcell_values='interp' (ours, not the paper's): sub-cells read the map bilinearly between cell centres at
+their own centres instead of sharing the cell value (eq. 20), so the second layer can use the field's
+variation inside a cell; pruning (eq. 25) still acts on whole cells.
+
 Pruning (RVBMP, eq. 25): only cells whose p_z / max p_z >= alpha enter A_t; alpha = 0 keeps every valid cell
 (VBMP). Search modes:
   * "viterbi" (default): exact max-product dynamic programming over the pruned states, i.e. the MAP path of
@@ -39,7 +46,7 @@ from typing import Literal
 import numpy as np
 
 from companion.matching.base import MatchFailure, Matcher, MatchResult, MatchWindow
-from companion.matching.maps import LocalGravityMap
+from companion.matching.maps import LocalGravityMap, bilinear
 
 
 @dataclass(frozen=True)
@@ -52,6 +59,8 @@ class ViterbiConfig:
     sigma_v_mps: float = 1.0  # velocity noise in p_v
     search: Literal["viterbi", "paper"] = "viterbi"
     representation_error: bool = True  # add the within-cell spread of the field to sigma_z (see module doc)
+    subcell_values: Literal["cell", "interp"] = "cell"  # 'cell' = eq. 20 (paper); 'interp' = bilinear at sub-cell centres
+    prior_sigma_m: float | None = None  # ours: Gaussian prior on the first state around the INS position (None = uniform, paper)
     max_pairs_per_block: int = 4_000_000  # memory bound of one transition block (states_prev x states_next)
 
     def __post_init__(self):
@@ -71,7 +80,8 @@ class ViterbiConfig:
     @property
     def name(self) -> str:
         if self.o > 1:
-            return "RVBMP-2"
+            base = "RVBMP-2" if self.subcell_values == "cell" else "RVBMP-2i"
+            return base + ("+prior" if self.prior_sigma_m else "")
         return "VBMP" if self.alpha == 0 else "RVBMP"
 
 
@@ -169,9 +179,18 @@ def build_layers(cmap: CellMap, window: MatchWindow, cfg: ViterbiConfig) -> list
         keep = ok & (lpz - np.nanmax(np.where(ok, lpz, -np.inf)) >= log_alpha)  # eq. 25
         cpos = cmap.centre(rc[keep])  # (k, 2)
         pos = (cpos[:, None, :] + sub_off[None, :, :]).reshape(-1, 2)
-        lp = np.repeat(lpz[keep], o * o)  # eq. 21
+        if cfg.subcell_values == "cell" or o == 1:
+            lp = np.repeat(lpz[keep], o * o)  # eq. 21
+        else:  # our variant: each sub-cell reads the map (bilinear between cell centres) at its own centre
+            gs = bilinear(cmap.east_m, cmap.north_m, cmap.g_mgal, pos[:, 1], pos[:, 0])
+            sg = np.full(gs.shape, cfg.sigma_z_mgal)
+            if cfg.representation_error:
+                sg = np.sqrt(sg**2 + (np.repeat(np.nan_to_num(cmap.value(rc[keep], "spread")), o * o) / o) ** 2)
+            lp = np.where(np.isfinite(gs), -0.5 * ((window.gravity_mgal[t] - gs) / sg) ** 2 - np.log(sg), -1e12)
         d2 = ((pos - window.ins_ne_m[t]) ** 2).sum(axis=1)
         ij = (rc[keep][:, None, :] * o + sub_ij[None, :, :]).reshape(-1, 2)
+        if t == 0 and cfg.prior_sigma_m:
+            lp = lp - 0.5 * d2 / cfg.prior_sigma_m**2
         layers.append(_Layer(pos, lp, d2, ij))
     return layers
 

@@ -40,6 +40,11 @@ SIGMA_V_MPS = 1.0
 SCENARIOS = {"chain": ((-40.0, 156.0), 0.0), "basin": ((-44.0, 156.5), 0.0)}
 NATIVE_CELL_M = 2900.0
 
+
+def PRIOR_M(T: int) -> float:
+    """Prior sigma for the '+prior' variant: the INS drift expected over one segment (bias x T x dt), >= 1 km."""
+    return max(1000.0, BIAS_MPS * T * DT_S)
+
 _CELLS: dict = {}
 
 
@@ -84,7 +89,8 @@ def _matcher(method: dict, scenario: str, sigma_z: float, T: int):
         return IccpMatcher(lmap, cfg, equivalence_mgal=equivalence_range_from_noise(sigma_z), speed_constraint=None)
     cfg = ViterbiConfig(n=method["n"], o=method["o"], alpha=method["alpha"], T=T, sigma_z_mgal=sigma_z,
                         sigma_v_mps=method.get("pv_sigma_mps", float(np.hypot(SIGMA_V_MPS, BIAS_MPS))),
-                        search=method.get("search", "viterbi"), representation_error=method.get("meas", "field") == "field")
+                        search=method.get("search", "viterbi"), representation_error=method.get("meas", "field") == "field",
+                        subcell_values=method.get("subcell", "cell"), prior_sigma_m=method.get("prior_m"))
     return ViterbiMatcher(None, cfg, cell_map=_cell_map(scenario, cell_m))
 
 
@@ -237,12 +243,14 @@ def main(argv=None):
             jobs, keys = [], []
             for T in (4, 6):
                 for sz in (1.0, 2.0):
-                    for alg in ("ICCP", "RVBMP-2"):
-                        meth = dict(kind="iccp", n=13, cell_m=half) if alg == "ICCP" else dict(kind="viterbi", n=13, o=5, alpha=0.1, cell_m=half)
+                    for alg in ("ICCP", "RVBMP-2", "RVBMP-2i+prior"):
+                        meth = (dict(kind="iccp", n=13, cell_m=half) if alg == "ICCP" else
+                                dict(kind="viterbi", n=13, o=5, alpha=0.1, cell_m=half, subcell="interp", prior_m=PRIOR_M(T))
+                                if alg.endswith("prior") else dict(kind="viterbi", n=13, o=5, alpha=0.1, cell_m=half))
                         jobs.append((scen, sz, T, meth, "reset"))
                         keys.append((T, int(sz), alg))
             S = sweep(ex, jobs, R, a.seed, key)
-            rows = [[T, sz, alg, f"{100 * s['success']:.0f}%", s["mean_km"], s["std_km"], s["time_ms"], *paper[(T, sz, alg)]]
+            rows = [[T, sz, alg, f"{100 * s['success']:.0f}%", s["mean_km"], s["std_km"], s["time_ms"], *paper.get((T, sz, alg), ("-", "-", "-"))]
                     for (T, sz, alg), s in zip(keys, S)]
             title = "Table 3 (chain, rough)" if key == "t3" else "Table 4 (basin, flat)"
             write_section(f"li-{key}", f"## Li {title}: RVBMP-2 (n 13, o 5, alpha 0.1) vs ICCP, cell {half:.0f} m, {R} runs\n\n"
