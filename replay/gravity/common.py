@@ -82,9 +82,10 @@ def plot_tracks(path: Path, lmap: LocalGravityMap, tracks: dict[str, np.ndarray]
     n1, e1 = allp.max(axis=0) + pad_m
     cell = max((n1 - n0), (e1 - e0)) / 300
     g, na, ea = lmap.regular_ne(cell, (n0, n1), (e0, e1))
-    fig, ax = plt.subplots(figsize=(8, 7))
+    aspect = (n1 - n0) / (e1 - e0)
+    fig, ax = plt.subplots(figsize=(9, float(np.clip(7.5 * aspect, 3.5, 9)) + 0.8))
     im = ax.pcolormesh(ea / 1e3, na / 1e3, g, cmap="viridis", shading="auto")
-    fig.colorbar(im, ax=ax, label="free-air anomaly (mGal)")
+    fig.colorbar(im, ax=ax, label="free-air anomaly (mGal)", shrink=0.8)
     styles = {"true": ("w-", 2.0), "INS": ("r--", 1.5)}
     for name, tr in tracks.items():
         st, lw = styles.get(name, ("-", 1.2))
