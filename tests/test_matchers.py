@@ -120,6 +120,14 @@ def test_interface_contract(matcher):
     assert all(o is None for o in outs[: matcher.min_len - 1])
     assert all(o is not None and o.ok for o in outs[matcher.min_len - 1:])
     assert np.linalg.norm(outs[-1].position_ne_m - true[-1]) < 1000.0
+    # online bad samples are dropped with a reason and do not poison later fixes
+    bad = matcher.feed(win.t_s[-1] + 10.0, win.ins_ne_m[-1], win.ins_vel_ne_mps[-1], float("nan"))
+    assert bad is not None and not bad.ok and "non-finite" in bad.reason
+    late = matcher.feed(win.t_s[-1], win.ins_ne_m[-1], win.ins_vel_ne_mps[-1], win.gravity_mgal[-1])
+    assert late is not None and not late.ok and "time" in late.reason
+    nxt = matcher.feed(win.t_s[-1] + 140.0, win.ins_ne_m[-1] + [0.0, 700.0], win.ins_vel_ne_mps[-1],
+                       float(LMAP.interp_ne(true[-1, 0], true[-1, 1] + 700.0)))
+    assert nxt is not None and nxt.ok
 
 
 def test_speed_constraint_eqs_12_13():

@@ -147,8 +147,16 @@ class Matcher(ABC):
     # ---- online ----
     def feed(self, t_s: float, ins_ne_m, ins_vel_ne_mps, gravity_mgal: float) -> MatchResult | None:
         """Add one sample; return a MatchResult when a fix is due, else None."""
-        n, e = np.asarray(ins_ne_m, float).reshape(2)
-        vn, ve = np.asarray(ins_vel_ne_mps, float).reshape(2)
+        try:
+            n, e = np.asarray(ins_ne_m, float).reshape(2)
+            vn, ve = np.asarray(ins_vel_ne_mps, float).reshape(2)
+            t_s, gravity_mgal = float(t_s), float(gravity_mgal)
+        except (TypeError, ValueError) as exc:
+            return MatchResult.failed(self.name, float("nan"), f"malformed sample dropped ({exc})")
+        if not np.all(np.isfinite([t_s, n, e, vn, ve, gravity_mgal])):
+            return MatchResult.failed(self.name, t_s, "non-finite sample dropped")
+        if self._buf and t_s <= self._buf[-1][0]:
+            return MatchResult.failed(self.name, t_s, "sample time not after the previous one; dropped")
         self._buf.append((float(t_s), n, e, vn, ve, float(gravity_mgal)))
         if len(self._buf) > self.window_len:
             del self._buf[0]
