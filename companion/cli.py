@@ -252,6 +252,8 @@ def build_parser() -> argparse.ArgumentParser:
     v = sub.add_parser("sim", help="simulated ArduPilot vehicle on a MAVLink link, for hardware-in-the-loop tests")
     v.add_argument("--listen", default="tcpin:127.0.0.1:5760", help="tcpin:HOST:PORT (like SITL) or udpout:HOST:PORT")
     v.add_argument("--log", help="play this .tlog (default: a generated flight, the sample flight's profile)")
+    v.add_argument("--profile", choices=("sample", "circuit"), default="sample", help="generated flight: the sample flight, or 200 m circuits that can loop")
+    v.add_argument("--loops", type=int, default=1, help="play the source this many times, boot time running on (0: until stopped)")
     v.add_argument("--gnss-hz", type=_positive_float, default=10.0, help="generated flight: GNSS rate (default 10)")
     v.add_argument("--imu-hz", type=_positive_float, default=50.0, help="generated flight: IMU rate (default 50)")
     v.add_argument("--seed", type=int, default=None, help="generated flight / noise seed")

@@ -52,6 +52,17 @@ class Item:
     play_s: float
     msg: Any
     src: tuple[int, int]
+    boot_s: float | None = None  # the message's own boot time (None: it has none)
+    unix_us: int | None = None  # SYSTEM_TIME's UTC
+
+    def __post_init__(self) -> None:
+        m = self.msg
+        if hasattr(m, "time_boot_ms"):
+            self.boot_s = m.time_boot_ms * 1e-3
+        elif hasattr(m, "time_usec") and 0 < m.time_usec < _EPOCH_US:
+            self.boot_s = m.time_usec * 1e-6
+        if hasattr(m, "time_unix_usec"):
+            self.unix_us = int(m.time_unix_usec)
 
 
 @dataclass
@@ -184,6 +195,7 @@ class VehicleSim:
         start_s: float = 0.0,
         end_s: float | None = None,
         streams: str = "requested",
+        loops: int = 1,
         record: str | Path | None = None,
         key: bytes | None = None,
         seed: int = 0,
@@ -200,6 +212,8 @@ class VehicleSim:
         self.start_s = start_s
         self.end_s = end_s if end_s is not None else playback.duration_s
         self.streams = streams
+        self.loops = loops  # play the source this many times (0: until stopped); boot time keeps counting
+        self.period_s = self.end_s - self.start_s + 0.02
         self.key = key
         self.rng = np.random.default_rng(seed)
         self.stats = SimStats()
@@ -317,7 +331,7 @@ class VehicleSim:
             d = decode_gps_input(m)
             boot_s = d["time_boot_us"] * 1e-6
             t = boot_s + (self.boot_play[1] - self.boot_play[0])  # boot time -> playback time
-            tr = self.playback.truth(t)
+            tr = self.playback.truth(self.start_s + (t - self.start_s) % self.period_s if t > self.end_s else t)
             rec = {"event": "gps_input", "play_s": play_s, "state_play_s": t, "signed": signed, **d}
             if tr is not None:
                 frame = LocalFrame(tr[0], tr[1], tr[2])
@@ -346,18 +360,18 @@ class VehicleSim:
         last = self.last_sent.get(mtype)
         return last is None or (play_s - last) * 1e6 >= 0.9 * interval
 
-    def _retime(self, msg) -> None:
-        """Shift boot-time fields by the reboot offset; remember the boot/playback relation."""
-        shift = self.boot_shift_s
+    def _retime(self, it: Item, msg, loop_offset_s: float) -> float | None:
+        """Set the boot-time fields for the loop and reboot offsets; returns the boot time sent."""
+        if it.unix_us is not None:
+            msg.time_unix_usec = it.unix_us + int(round(loop_offset_s * 1e6))
+        if it.boot_s is None:
+            return None
+        boot = it.boot_s + loop_offset_s - self.boot_shift_s
         if hasattr(msg, "time_boot_ms"):
-            boot = msg.time_boot_ms * 1e-3 - shift
             msg.time_boot_ms = max(0, int(round(boot * 1e3)))
-            return boot
-        if hasattr(msg, "time_usec") and 0 < msg.time_usec < _EPOCH_US:
-            boot = msg.time_usec * 1e-6 - shift
+        else:
             msg.time_usec = max(0, int(round(boot * 1e6)))
-            return boot
-        return None
+        return boot
 
     def _noise(self, play_s: float) -> None:
         """One round of bad input (about once a second)."""
@@ -397,9 +411,15 @@ class VehicleSim:
 
         next_noise = self.start_s + 1.0
         dropped = rebooting = gnss_logged = forgot = False
-        i = 0
+        i = k = 0
         try:
-            while i < len(items) and not self._stop:
+            while not self._stop:
+                if i >= len(items):
+                    if self.loops and k + 1 >= self.loops:
+                        break
+                    i, k = 0, k + 1
+                    self._log({"event": "loop", "play_s": play_now(), "loop": k})
+                loop_offset = k * self.period_s
                 now = play_now()
                 # link drop: close everything, reopen at the end of the window
                 if _in(f.link_drop, now) and not dropped:
@@ -429,30 +449,31 @@ class VehicleSim:
                     gnss_logged = True
                     self._log({"event": "gnss_off", "play_s": now})
                 silent = dropped or rebooting
-                while i < len(items) and items[i].play_s <= now:
+                while i < len(items) and items[i].play_s + loop_offset <= now:
                     it = items[i]
+                    t = it.play_s + loop_offset
                     i += 1
                     if silent:
                         continue
                     mtype = it.msg.get_type()
-                    if mtype in ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2") and _in(f.imu_off, it.play_s):
+                    if mtype in ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2") and _in(f.imu_off, t):
                         continue
-                    if not self._wanted(mtype, it.play_s):
+                    if not self._wanted(mtype, t):
                         continue
                     msg = it.msg
-                    if mtype == "GPS_RAW_INT" and _in(f.gnss_off, it.play_s):
+                    if mtype == "GPS_RAW_INT" and _in(f.gnss_off, t):
                         msg = mavlink2.MAVLink_gps_raw_int_message(msg.time_usec, 1, 0, 0, 0, 65535, 65535, 0, 65535, 0)
-                    boot = self._retime(msg)
+                    boot = self._retime(it, msg, loop_offset)
                     if boot is not None:
-                        self.boot_play = (boot, it.play_s)
+                        self.boot_play = (boot, t)
                     self._send(msg, it.src)
-                    self.last_sent[mtype] = it.play_s
+                    self.last_sent[mtype] = t
                     if mtype == "RAW_IMU":
                         self._recent_imu = (self._recent_imu + [msg])[-5:]
                 if f.noise and not silent and now >= next_noise and self.boot_play != (0.0, 0.0):
                     self._noise(now)
                     next_noise = now + 1.0
-                nxt = items[i].play_s if i < len(items) else now
+                nxt = items[i].play_s + loop_offset if i < len(items) else now
                 self._poll(min(0.005, max(0.0, (nxt - play_now()) / self.speed)), now, silent)
         finally:
             self._log({"event": "end", "play_s": play_now(), "gps_input": self.stats.gps_input,
@@ -467,6 +488,28 @@ class VehicleSim:
         return self.stats
 
 
+def circuit_profile(circuits: int = 2):
+    """Take off, fly ``circuits`` 200 m squares at 8 m/s, land where it started and yaw back to north:
+    it ends as it began (on the ground at the origin, nose north), so it can be looped for soak runs."""
+    from companion.sim.flight import CANBERRA_FIELD
+    from companion.sim.trajectory import Climb, FlightProfile, Hold, Land, Speed, Yaw, legs_through_waypoints
+
+    wps = [(200.0, 0.0), (200.0, 200.0), (0.0, 200.0), (0.0, 0.0)] * circuits
+    legs = [
+        Hold(6.0, mode="STABILIZE"),
+        Hold(4.0, mode="AUTO"),
+        Climb(20.0, rate_mps=2.5),
+        Hold(2.0),
+        *legs_through_waypoints(wps, start_ne_m=(0.0, 0.0), start_heading_deg=0.0, speed_mps=8.0, turn_radius_m=20.0),
+        Speed(0.0),
+        Hold(2.0),
+        Land(rate_mps=1.5, final_rate_mps=0.5, flare_m=3.0, mode="LAND"),
+        Yaw(90.0),
+        Hold(4.0, mode="STABILIZE"),
+    ]
+    return FlightProfile(legs, CANBERRA_FIELD, start_heading_deg=0.0)
+
+
 def run_sim(args) -> int:
     """``companion sim`` entry point (argparse namespace from companion.cli)."""
     from companion.config import load_signing_key
@@ -474,10 +517,11 @@ def run_sim(args) -> int:
     if args.log:
         playback = playback_from_tlog(args.log)
     else:
-        from companion.sim.flight import SimConfig, sample_profile, simulate_flight, SAMPLE_SEED
+        from companion.sim.flight import SAMPLE_SEED, SimConfig, sample_profile, simulate_flight
 
+        profile = circuit_profile() if args.profile == "circuit" else sample_profile()
         flight = simulate_flight(
-            sample_profile(), args.seed if args.seed is not None else SAMPLE_SEED,
+            profile, args.seed if args.seed is not None else SAMPLE_SEED,
             SimConfig(gnss_rate_hz=args.gnss_hz, imu_rate_hz=args.imu_hz, attitude_rate_hz=10.0),
         )
         playback = playback_from_flight(flight)
@@ -492,7 +536,7 @@ def run_sim(args) -> int:
     key = load_signing_key(args.signing_key_file) if args.signing_key_file else None
     sim = VehicleSim(
         playback, args.listen, faults=faults, speed=args.speed, start_s=args.start, end_s=args.end,
-        streams=args.streams, record=args.record, key=key, seed=args.seed or 0,
+        streams=args.streams, loops=args.loops, record=args.record, key=key, seed=args.seed or 0,
     )
     signal.signal(signal.SIGTERM, sim.stop)
     signal.signal(signal.SIGINT, sim.stop)
