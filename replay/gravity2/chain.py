@@ -163,7 +163,9 @@ def gravity_replay(log_path: str | Path, map_path: str | Path, deny_gnss_after_s
         m = None
     else:
         raise ValueError(f"unknown matcher {matcher!r} (viterbi, none)")
-    return run_gravity_chain(events, lmap, placement, deny_gnss_after_s, m, grav, gravity_period_s=gravity_period_s)
+    floor = m.cells.cell_m if m is not None else 1.0  # a fix is not trusted below one map cell
+    return run_gravity_chain(events, lmap, placement, deny_gnss_after_s, m, grav, gravity_period_s=gravity_period_s,
+                             sigma_floor_m=floor)
 
 
 def main(argv=None):  # python -m replay.gravity2.chain LOG MAP --deny-gnss-after S
