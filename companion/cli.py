@@ -300,6 +300,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("companion: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except BrokenPipeError:  # output piped into `head` and closed: not an error of ours
+        sys.stderr.close()
+        return EXIT_OK
     except OSError as err:
         print(f"companion: error: {err.filename or ''}: {err.strerror or err}", file=sys.stderr)
         return EXIT_ERROR

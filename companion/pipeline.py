@@ -9,6 +9,7 @@ outputs as well as the input events, so a predictor's points can feed the integr
 from __future__ import annotations
 
 import asyncio
+import math
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -71,6 +72,9 @@ class Pipeline:
     def _emit(self, item: Any) -> None:
         if self.sink is not None:
             self.sink.write(item, _instance_topic(item))
+            track = _MAP_TRACKS.get(type(item).__name__)
+            if track is not None and _finite(item.lat_deg, item.lon_deg, item.alt_msl_m):
+                self.sink.write_location(track, item.t_s, item.lat_deg, item.lon_deg, item.alt_msl_m, cov_enu_m2=_cov_enu(item))
         if not isinstance(item, Event):
             self.outputs += 1
 
@@ -87,6 +91,22 @@ class Pipeline:
 UERE_M = 2.5
 
 
+#: Outputs that also go to Foxglove's Map panel, one LocationFix track each.
+_MAP_TRACKS = {"FusedState": "/map/fused", "PredictorPoint": "/map/predictor"}
+
+
+def _finite(*vals: float) -> bool:
+    return all(v is not None and math.isfinite(v) for v in vals)
+
+
+def _cov_enu(item: Any) -> list[list[float]] | None:
+    """Diagonal ENU covariance from an output's horizontal/vertical sigmas (NED position variances)."""
+    h, v = getattr(item, "sigma_h_m", None), getattr(item, "sigma_v_m", None)
+    if not _finite(h, v):
+        return None
+    return [[h * h, 0.0, 0.0], [0.0, h * h, 0.0], [0.0, 0.0, v * v]]
+
+
 def _instance_topic(item: Any) -> str | None:
     """Second and third sensors get their own topics (/input/imu1, /input/gnss1) so rates read right."""
     if isinstance(item, ImuSample) and item.imu_index:
@@ -96,13 +116,23 @@ def _instance_topic(item: Any) -> str | None:
     return None
 
 
-def build_pipeline(sink: Sink | None, *, nav_config: Any = None, extra_stages: Iterable[Stage] = ()) -> Pipeline:
+def build_pipeline(
+    sink: Sink | None,
+    *,
+    navigate: bool = True,
+    nav_config: Any = None,
+    extra_stages: Iterable[Stage] = (),
+) -> Pipeline:
     """The one pipeline wiring used by replay, the live runtime and the benchmarks.
 
-    source events -> [navigator (KNN predictor + INS + Kalman integrator)] -> extra stages (e.g. the
-    GPS_INPUT injector, which consumes the navigator's FusedState) -> sink.
+    source events -> navigator (KNN predictor + INS + Kalman integrator, companion.estimation) ->
+    extra stages (e.g. the GPS_INPUT injector, which consumes the navigator's FusedState) -> sink.
     """
     stages: list[Stage] = []
+    if navigate:
+        from companion.estimation import Navigator
+
+        stages.append(Navigator(nav_config))
     stages += list(extra_stages)
     return Pipeline(stages=stages, sink=sink)
 

@@ -91,7 +91,8 @@ def test_truncated_bin_replays_what_is_there_and_says_so(tmp_path):
     assert res.returncode == 3 and "Traceback" not in res.stderr
     assert "truncated" in res.stdout
     s = summarize(tmp_path / "cut.mcap")
-    assert s.finalised and {t.topic: t.count for t in s.topics}["/input/imu"] > 10_000
+    imu = sum(t.count for t in s.topics if t.topic.startswith("/input/imu"))
+    assert s.finalised and imu > 10_000  # ~1/3 of the file: three IMUs at 50 Hz
 
 
 def test_missing_file_and_bad_url():
@@ -162,5 +163,6 @@ def test_live_udp_ingest_records_events(tmp_path):
     assert "Traceback" not in stderr
     s = summarize(out)
     counts = {t.topic: t.count for t in s.topics}
-    assert counts.get("/input/gnss", 0) > 50 and counts.get("/input/imu", 0) > 100
+    imu = sum(n for topic, n in counts.items() if topic.startswith("/input/imu"))
+    assert counts.get("/input/gnss", 0) > 50 and imu > 100
     assert "other system 255/190" in stdout  # the ground station's messages were dropped, and said so
