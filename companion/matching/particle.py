@@ -31,7 +31,10 @@ Optimisers run on the particles' position states between prediction and resampli
   * APO (artificial physics optimisation, Liu F.M. et al. 2012, ref. 20 of Liu 2019; not available to us, so
     reconstructed from the APO literature with the stated parameters): particles within r_s of a better particle
     are attracted to it (Ka1 beyond D_th, Ka2 within D_th), repelled by worse ones (Kb), velocity v = Kb v + F/m.
-The fitness is the observation log-likelihood; after the iterations the weights are recomputed (Step 4),
+The fitness is the observation log-likelihood with sigma = hypot(sigma_obs, sigma_map): sigma_map (ours) covers
+map and interpolation error; with sigma_map = 0 and 1 E the likelihood is so sharp on our maps that the swarm locks
+onto wrong local optima, and the GF pull (up to 20 x L_max = 600 m per period towards the best particle) turns
+into a random walk when the likelihood is flat, so the value matters (see the benchmark notes); after the iterations the weights are recomputed (Step 4),
 resampling (systematic) happens when N_eff < N_th (Step 5), and the estimate is the weighted mean (Step 6).
 """
 
@@ -179,6 +182,7 @@ class PfConfig:
     iterations: int = 20
     period_s: float = 10.0
     sigma_obs: float = 1.0  # per component, Eotvos (gradient) or mGal (scalar)
+    sigma_map: float = 0.0  # added in quadrature in the likelihood: map / interpolation / model error (same unit)
     neff_frac: float = 0.5  # N_th = neff_frac * N
     noise: ParticleInsNoise = field(default_factory=ParticleInsNoise)
     gf: GfParams = field(default_factory=GfParams)
@@ -221,11 +225,14 @@ class GravityParticleFilter:
         x[:, 9:12] = rng.normal(0.0, nz.gyro_bias_degph * DEGPH, (N, 3))
         self.x = x
         self.w = np.full(N, 1.0 / N)
+        self._sigma = float(np.hypot(cfg.sigma_obs, cfg.sigma_map))
+        if not self._sigma > 0:
+            raise ValueError("sigma_obs and sigma_map cannot both be 0")
 
     # -- likelihood ----------------------------------------------------------------------------------------
     def _loglik(self, pos_err_ne: np.ndarray, ins_ne: np.ndarray, y: np.ndarray) -> np.ndarray:
         pred = self.f(ins_ne[0] - pos_err_ne[:, 0], ins_ne[1] - pos_err_ne[:, 1])  # eq. 16
-        r = (pred - y) / self.cfg.sigma_obs
+        r = (pred - y) / self._sigma
         ll = -0.5 * np.sum(r * r, axis=1)
         return np.where(np.isfinite(ll), ll, -1e12)
 

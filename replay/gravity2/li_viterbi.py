@@ -41,9 +41,9 @@ SCENARIOS = {"chain": ((-40.0, 156.0), 0.0), "basin": ((-44.0, 156.5), 0.0)}
 NATIVE_CELL_M = 2900.0
 
 
-def PRIOR_M(T: int) -> float:
+def PRIOR_M(T: int, bias_mps: float | None = None) -> float:
     """Prior sigma for the '+prior' variant: the INS drift expected over one segment (bias x T x dt), >= 1 km."""
-    return max(1000.0, BIAS_MPS * T * DT_S)
+    return max(1000.0, (BIAS_MPS if bias_mps is None else bias_mps) * T * DT_S)
 
 _CELLS: dict = {}
 
@@ -59,7 +59,8 @@ def _cell_map(scenario: str, cell_m: float) -> CellMap:
     return _CELLS[key]
 
 
-def simulate(scenario: str, sigma_z: float, rng: np.random.Generator, meas: str = "field", cell_m: float = NATIVE_CELL_M):
+def simulate(scenario: str, sigma_z: float, rng: np.random.Generator, meas: str = "field", cell_m: float = NATIVE_CELL_M,
+             bias_mps: float | None = None):
     """meas='field': bilinear map value at the true position (a continuous field); 'cell': the value of the
     cell holding the true position (the paper's simulation, its look-up function g_m)."""
     lmap = tasman_map()
@@ -75,7 +76,7 @@ def simulate(scenario: str, sigma_z: float, rng: np.random.Generator, meas: str 
         g = lmap.interp_ne(true[:, 0], true[:, 1])
     z = g + rng.normal(0.0, sigma_z, n)
     ang = rng.uniform(0, 2 * np.pi)
-    vmeas = v0 + BIAS_MPS * np.array([np.cos(ang), np.sin(ang)]) + rng.normal(0.0, SIGMA_V_MPS, (n, 2))
+    vmeas = v0 + (BIAS_MPS if bias_mps is None else bias_mps) * np.array([np.cos(ang), np.sin(ang)]) + rng.normal(0.0, SIGMA_V_MPS, (n, 2))
     return t, true, z, vmeas
 
 
@@ -88,7 +89,7 @@ def _matcher(method: dict, scenario: str, sigma_z: float, T: int):
         lmap = tasman_map()
         return IccpMatcher(lmap, cfg, equivalence_mgal=equivalence_range_from_noise(sigma_z), speed_constraint=None)
     cfg = ViterbiConfig(n=method["n"], o=method["o"], alpha=method["alpha"], T=T, sigma_z_mgal=sigma_z,
-                        sigma_v_mps=method.get("pv_sigma_mps", float(np.hypot(SIGMA_V_MPS, BIAS_MPS))),
+                        sigma_v_mps=method.get("pv_sigma_mps", float(np.hypot(SIGMA_V_MPS, method.get("bias_mps", BIAS_MPS)))),
                         search=method.get("search", "viterbi"), representation_error=method.get("meas", "field") == "field",
                         subcell_values=method.get("subcell", "cell"), prior_sigma_m=method.get("prior_m"))
     return ViterbiMatcher(None, cfg, cell_map=_cell_map(scenario, cell_m))
@@ -97,7 +98,8 @@ def _matcher(method: dict, scenario: str, sigma_z: float, T: int):
 def run_one(scenario: str, sigma_z: float, T: int, method: dict, fusion: str, seed: int) -> dict:
     """One Monte Carlo run. fusion: 'reset' (paper) or 'kf' (FixFusionFilter)."""
     rng = np.random.default_rng(seed)
-    t, true, z, vmeas = simulate(scenario, sigma_z, rng, method.get("meas", "field"), method["cell_m"])
+    bias = method.get("bias_mps", BIAS_MPS)
+    t, true, z, vmeas = simulate(scenario, sigma_z, rng, method.get("meas", "field"), method["cell_m"], bias)
     m = _matcher(method, scenario, sigma_z, T)
     n = t.size
     path = np.full((n, 2), np.nan)  # corrected (C-INS) positions, the paper's metric
@@ -105,7 +107,7 @@ def run_one(scenario: str, sigma_z: float, T: int, method: dict, fusion: str, se
     times = []
     ins = true[0].copy()
     raw = true[0].copy()
-    kf = FixFusionFilter(FixFusionConfig(init_pos_sigma_m=100.0, init_vel_sigma_mps=2 * BIAS_MPS), t0_s=t[0]) if fusion == "kf" else None
+    kf = FixFusionFilter(FixFusionConfig(init_pos_sigma_m=100.0, init_vel_sigma_mps=max(2 * bias, 2.0)), t0_s=t[0]) if fusion == "kf" else None
     seg = []
     for k in range(n):
         if k:
@@ -200,11 +202,15 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--address", default=None)
     ap.add_argument("--only", default="t1,t2,t3,t4,fusion")
+    ap.add_argument("--bias-mps", type=float, default=BIAS_MPS, help="INS velocity bias (paper: 1 deg/h = 30.9 m/s)")
+    ap.add_argument("--tag", default="", help="suffix of the result sections (to keep runs with other settings)")
     a = ap.parse_args(argv)
     only = set(a.only.split(","))
     R = a.runs
     half = NATIVE_CELL_M / 2
-    cmd = f"nice -n 10 .venv/bin/python -m replay.gravity2.li_viterbi --runs {R} --only {a.only}"
+    B = a.bias_mps
+    tag = a.tag
+    cmd = f"nice -n 10 .venv/bin/python -m replay.gravity2.li_viterbi --runs {R} --only {a.only} --bias-mps {B:g}" + (f" --tag {tag}" if tag else "")
     with make_executor(a.executor, a.workers, a.address) as ex:
         t0 = time.time()
         if "t1" in only:
@@ -245,32 +251,38 @@ def main(argv=None):
                 for sz in (1.0, 2.0):
                     for alg in ("ICCP", "RVBMP-2", "RVBMP-2i+prior"):
                         meth = (dict(kind="iccp", n=13, cell_m=half) if alg == "ICCP" else
-                                dict(kind="viterbi", n=13, o=5, alpha=0.1, cell_m=half, subcell="interp", prior_m=PRIOR_M(T))
+                                dict(kind="viterbi", n=13, o=5, alpha=0.1, cell_m=half, subcell="interp", prior_m=PRIOR_M(T, B))
                                 if alg.endswith("prior") else dict(kind="viterbi", n=13, o=5, alpha=0.1, cell_m=half))
+                        meth["bias_mps"] = B
                         jobs.append((scen, sz, T, meth, "reset"))
                         keys.append((T, int(sz), alg))
             S = sweep(ex, jobs, R, a.seed, key)
             rows = [[T, sz, alg, f"{100 * s['success']:.0f}%", s["mean_km"], s["std_km"], s["time_ms"], *paper.get((T, sz, alg), ("-", "-", "-"))]
                     for (T, sz, alg), s in zip(keys, S)]
             title = "Table 3 (chain, rough)" if key == "t3" else "Table 4 (basin, flat)"
-            write_section(f"li-{key}", f"## Li {title}: RVBMP-2 (n 13, o 5, alpha 0.1) vs ICCP, cell {half:.0f} m, {R} runs\n\n"
+            write_section(f"li-{key}{tag}", f"## Li {title}: RVBMP-2 (n 13, o 5, alpha 0.1) vs ICCP, cell {half:.0f} m, INS bias {B:.1f} m/s, {R} runs\n\n"
                           f"`{cmd}`\n\n" + md_table(["T", "sigma_z (mGal)", "algorithm", "success", "Mean (km)", "Std (km)",
                                                      "ms/correction", "paper success %", "paper Mean", "paper Std"], rows))
             _plot({f"{alg} T={T} sz={sz}": s["curve"] for (T, sz, alg), s in zip(keys, S) if sz == 1},
-                  RESULTS_DIR / f"gravity2_li_{key}.png", f"Li {title}: sigma_z 1 mGal, {R} runs")
+                  RESULTS_DIR / f"gravity2_li_{key}{tag}.png", f"Li {title}: sigma_z 1 mGal, bias {B:.1f} m/s, {R} runs")
             print(key, [(r[0], r[1], r[2], r[3], round(r[4], 3)) for r in rows], flush=True)
         if "fusion" in only:
             jobs, keys = [], []
             for scen in ("chain", "basin"):
-                for fus in ("reset", "kf"):
-                    jobs.append((scen, 1.0, 6, dict(kind="viterbi", n=13, o=5, alpha=0.1, cell_m=half), fus))
-                    keys.append((scen, fus))
+                for alg in ("RVBMP-2", "RVBMP-2i+prior"):
+                    for fus in ("reset", "kf"):
+                        meth = dict(kind="viterbi", n=13, o=5, alpha=0.1, cell_m=half, bias_mps=B)
+                        if alg.endswith("prior"):
+                            meth.update(subcell="interp", prior_m=PRIOR_M(6, B))
+                        jobs.append((scen, 1.0, 6, meth, fus))
+                        keys.append((scen, alg, fus))
             S = sweep(ex, jobs, R, a.seed, "fusion")
-            rows = [[scen, fus, f"{100 * s['success']:.0f}%", s["rt_all_mean_km"], s["rt_mean_km"], s["mean_km"]] for (scen, fus), s in zip(keys, S)]
-            write_section("li-fusion", "## Fusion: matcher fixes into a KF (FixFusionFilter) vs the paper's INS reset\n\n"
-                          f"RVBMP-2 (n 13, o 5, alpha 0.1), sigma_z 1 mGal, T 6, cell {half:.0f} m, {R} runs. Real-time = causal "
+            rows = [[scen, alg, fus, f"{100 * s['success']:.0f}%", s["rt_all_mean_km"], s["rt_mean_km"], s["mean_km"]]
+                    for (scen, alg, fus), s in zip(keys, S)]
+            write_section(f"li-fusion{tag}", "## Fusion: matcher fixes into a KF (FixFusionFilter) vs the paper's INS reset\n\n"
+                          f"n 13, o 5, alpha 0.1, sigma_z 1 mGal, T 6, cell {half:.0f} m, INS bias {B:.1f} m/s, {R} runs. Real-time = causal "
                           "navigation output at every sample; 'all runs' includes divergent ones.\n\n"
-                          f"`{cmd}`\n\n" + md_table(["scenario", "fusion", "success", "real-time mean err, all runs (km)",
+                          f"`{cmd}`\n\n" + md_table(["scenario", "matcher", "fusion", "success", "real-time mean err, all runs (km)",
                                                      "real-time mean err, ok runs (km)", "matched-path Mean (km)"], rows))
             print("fusion", rows, flush=True)
         print(f"total {time.time() - t0:.0f} s")
