@@ -238,3 +238,11 @@ def test_cross_check_against_the_receiver():
     assert isinstance(held[0], InjectorDrop) and "not yet re-checked" in held[0].reason
     inj.process(replace(rx, t_s=10.75))
     assert isinstance(inj.process(state(t_s=10.8, lat=-35.3632))[0], GpsInputRecord)
+
+
+def test_gnss_time_preferred_over_system_time():
+    inj = Injector(InjectConfig(mode="shadow"))
+    inj.process(SystemTime(t_s=9.0, unix_time_s=1.7e9))
+    inj.process(replace(fix(9.9), gps_week=2357, gps_tow_s=518_423.0))
+    rec = inj.process(state(t_s=10.0))[0]
+    assert (rec.time_week, rec.time_week_ms) == (2357, 518_423_100)

@@ -15,7 +15,8 @@ Field by field (what ArduPilot's AP_GPS_MAV driver and EKF3 do with it, observed
 * ``fix_type``: 3 (3D) only while sigma_h <= ``max_h_acc_3d_m`` and sigma_v <= ``max_v_acc_3d_m``;
   2 (2D) while sigma_h <= ``max_h_acc_2d_m``; 1 (no fix) beyond. ``satellites_visible``: the configured
   ``satellites`` (>= 6, which ArduPilot requires) with a 2D/3D fix, 0 without.
-* ``time_week``/``time_week_ms``: GPS time of the solution from the autopilot's SYSTEM_TIME (UTC + leap
+* ``time_week``/``time_week_ms``: GPS time of the solution from the receiver's own GPS time when the
+  source gives it (``GnssFix.gps_week``/``gps_tow_s``), else from the autopilot's SYSTEM_TIME (UTC + leap
   seconds), 0/0 while unknown (ArduPilot then uses its own arrival time). ``time_usec``: the autopilot's
   boot time of the solution (microseconds since boot).
 * ``yaw``: 0 (not available) unless ``send_yaw`` and the state has a heading (then cdeg, 36000 = north).
@@ -227,6 +228,7 @@ class Injector:
         self.fix_types: Counter[int] = Counter()
         self._boot_offset_s = 0.0  # vehicle time minus autopilot boot time (grows at each reboot)
         self._utc: SystemTime | None = None
+        self._gnss_time: tuple[float, int, float] | None = None  # (t_s, week, tow_s) of the receiver
         self._last_state_t: float | None = None
         self._last_out_t: float | None = None
         self._last_good_gnss_t: float | None = None
@@ -260,6 +262,7 @@ class Injector:
             # UTC (SYSTEM_TIME is re-sent) and the time order of states (the navigator restarts its clock)
             self._boot_offset_s = item.t_s - item.new_boot_s
             self._utc = None
+            self._gnss_time = None
             self._last_out_t = None
             return [InjectorState(item.t_s, self._active, "autopilot rebooted")]
         return []
@@ -298,6 +301,8 @@ class Injector:
                 self._floor_h_m = h
             if v is not None and _finite(v) and v > 0:
                 self._floor_v_m = v
+        if fix.gps_week is not None and fix.gps_tow_s is not None and _finite(fix.gps_tow_s) and fix.gps_week > 0:
+            self._gnss_time = (fix.t_s, int(fix.gps_week), float(fix.gps_tow_s))
         if good:
             h = fix.h_acc_m if fix.h_acc_m is not None else (fix.hdop * c.uere_m if fix.hdop is not None else c.uere_m)
             self._rx_fix = (fix.t_s, fix.lat_deg, fix.lon_deg, h if _finite(h) and h > 0 else c.uere_m)
@@ -398,7 +403,10 @@ class Injector:
         else:
             speed_acc, flags = 0.0, flags | IGNORE_SPEED_ACCURACY
         week = week_ms = 0
-        if self._utc is not None:
+        if self._gnss_time is not None:
+            t0, wk, tow = self._gnss_time
+            week, week_ms = gps_week_from_unix(GPS_EPOCH_UNIX_S - GPS_LEAP_S + wk * WEEK_S + tow + (s.t_s - t0))
+        elif self._utc is not None:
             week, week_ms = gps_week_from_unix(self._utc.unix_time_s + (s.t_s - self._utc.t_s))
         boot_s = max(0.0, s.t_s - self._boot_offset_s)
         yaw = 0

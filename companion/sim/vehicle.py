@@ -11,7 +11,7 @@ RAW_IMU / SCALED_IMU2, ATTITUDE, STATUSTEXT -- and behaves like one towards the 
   sends it), IMU stop, link drop (silence both ways; a TCP server closes the connection and stops
   listening), reboot (silence, then boot time restarts at 0 and the requested intervals are forgotten),
   and ``noise``: garbage bytes, frames with a bad CRC, another system's GPS, NaN attitude, fix_type 0 at
-  0,0, duplicated and out-of-order IMU samples;
+  0,0, a 3D fix at latitude 95 deg, duplicated and out-of-order IMU samples;
 * as TCP server (``tcpin``, like SITL) it starts its clock when the first client connects;
 * every GPS_INPUT received is written to a JSON-lines record with the truth at the message's time and
   the horizontal error (truth: the flight's trajectory, or the log's own receiver positions).
@@ -385,6 +385,8 @@ class VehicleSim:
         self._send(other, (2, 1))  # another vehicle's receiver: must be ignored
         self._send(mavlink2.MAVLink_attitude_message(max(0, int(boot * 1e3)), math.nan, 0.0, 0.0, 0, 0, 0), (1, 1))
         self._send(mavlink2.MAVLink_gps_raw_int_message(int(boot * 1e6), 0, 0, 0, 0, 65535, 65535, 0, 65535, 0), (1, 1))
+        # a 3D fix with latitude 95 deg: out of range, must be refused
+        self._send(mavlink2.MAVLink_gps_raw_int_message(int(boot * 1e6), 3, 950000000, 1491652000, 600000, 80, 120, 0, 0, 12), (1, 1))
         if len(self._recent_imu) >= 2 and self.boot_play[0] - self._recent_imu[0].time_usec * 1e-6 < 0.5:
             # a duplicate and a sample ~0.1 s out of order (only while the IMU streams: a sample seconds
             # old looks like an autopilot reboot to companion.timebase, which needs a 2 s jump back)
