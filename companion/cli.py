@@ -84,12 +84,22 @@ def _finish_record(recorder, source, pipeline, config: dict, stopped_by: str | N
     recorder.add_metadata("source", meta)
     recorder.add_metadata("config", {k: str(v) for k, v in config.items()})
     for stage in pipeline.stages:
-        if hasattr(stage, "metadata"):
-            recorder.add_metadata(type(stage).__name__, {k: str(v) for k, v in stage.metadata().items()})
+        meta = _stage_metadata(stage)
+        if meta:
+            recorder.add_metadata(type(stage).__name__, meta)
     summary = pipeline.stats.as_dict()
     summary["stopped_by"] = stopped_by or "end of input"
     recorder.add_metadata("summary", {"json": json.dumps(summary, sort_keys=True)})
     recorder.close()
+
+
+def _stage_metadata(stage) -> dict[str, str]:
+    """What a stage says about itself: its own metadata(), plus its mode and the reason for it."""
+    meta = {k: str(v) for k, v in getattr(stage, "metadata", dict)().items()}
+    for attr in ("mode", "mode_reason"):
+        if getattr(stage, attr, None):
+            meta[attr] = str(getattr(stage, attr))
+    return meta
 
 
 def _print_summary(source, pipeline, out: Path, stopped_by: str | None, elapsed_s: float) -> None:
@@ -98,8 +108,8 @@ def _print_summary(source, pipeline, out: Path, stopped_by: str | None, elapsed_
         print(f"  {k}: {v}")
     print(pipeline.stats.format())
     for stage in pipeline.stages:
-        for line in getattr(stage, "summary_lines", lambda: [])():
-            print(line)
+        for k, v in _stage_metadata(stage).items():
+            print(f"{type(stage).__name__.lower():<12} {k}: {v}")
     for w in source.info.warnings:
         print(f"warning: {w}")
     n = sum(pipeline.stats.counts.values())

@@ -49,16 +49,29 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("logs", nargs="*", type=Path)
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--out", type=Path, help="also write the table as Markdown to this file")
     args = ap.parse_args()
     logs = args.logs or [max(SHARED_LOGS.glob("*.bin"), key=lambda p: p.stat().st_size)]
-    print(f"{'log':<48} {'MB':>5} {'pymavlink msgs':>14} {'msgs/s':>9} {'replay events':>13} {'outputs':>8} "
-          f"{'events/s':>9} {'x realtime':>10}")
+    rows = [
+        "| log | MB | pymavlink messages | pymavlink msgs/s | replay events | pipeline outputs | replay events/s | x real time |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for log in logs:
         raw = min((pymavlink_raw(log) for _ in range(args.repeat)), key=lambda r: r[1])
         rep = min((companion_replay(log) for _ in range(args.repeat)), key=lambda r: r[2])
-        print(
-            f"{log.name[:48]:<48} {log.stat().st_size / 1e6:5.2f} {raw[0]:>14} {raw[0] / raw[1]:>9.0f} "
-            f"{rep[0]:>13} {rep[1]:>8} {rep[0] / rep[2]:>9.0f} {rep[3] / rep[2]:>10.1f}"
+        rows.append(
+            f"| {log.name} | {log.stat().st_size / 1e6:.2f} | {raw[0]} | {raw[0] / raw[1]:,.0f} | {rep[0]} | "
+            f"{rep[1]} | {rep[0] / rep[2]:,.0f} | {rep[3] / rep[2]:.0f} |"
+        )
+    table = "\n".join(rows)
+    print(table)
+    if args.out:
+        args.out.write_text(
+            "# Ingest and replay throughput (issue 2)\n\nCommand (repository root):\n\n"
+            f"    .venv/bin/python -m replay.throughput --repeat {args.repeat} --out {args.out}\n\n"
+            "pymavlink: `mavutil.mavlink_connection(path)` + `recv_match()` over every message (raw decode, "
+            "nothing else). Replay: ingest + the full pipeline (KNN predictor, INS, Kalman integrator) + MCAP "
+            "record, in-process, one run each, best of the repeats, same machine, same run.\n\n" + table + "\n"
         )
 
 

@@ -38,6 +38,12 @@ def test_replay_every_real_log_then_inspect(log, tmp_path):
     assert topics["/map/gnss"].schema_name == "foxglove.LocationFix"
     assert ("/input/imu" in topics) == (log != LOG_AC402)
     assert {"source", "config", "summary", "companion"} <= {name for name, _ in s.metadata}
+    # too slow (tlog, ~1 Hz) or no IMU (AC 4.0.2): the navigator says it fell back, in the record and summary
+    nav = dict(s.metadata)["Navigator"]
+    expected_mode = "kinematic" if log in (LOG_TLOG, LOG_AC402) else "ins"
+    assert nav["mode"] == expected_mode and nav["mode_reason"]
+    assert f"mode: {expected_mode}" in res.stdout
+    assert topics["/map/fused"].count > 100
     ins = run_cli("inspect", out)
     assert ins.returncode == 0 and "/input/gnss" in ins.stdout
 

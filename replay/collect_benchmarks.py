@@ -1,0 +1,51 @@
+"""Assemble BENCHMARKS.md from the measured tables under replay/results/ (each written by its benchmark).
+
+    .venv/bin/python -m replay.collect_benchmarks
+
+Every section keeps the command that produced it; this script only concatenates, shifts headings one
+level down and makes image links relative to the repository root. It measures nothing itself.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "replay" / "results"
+ORDER = ["ingest.md", "gap_filling.md", "live.md", "gravity_part1.md", "gravity_part2.md"]
+
+
+def main() -> None:
+    files = [RESULTS / n for n in ORDER if (RESULTS / n).exists()]
+    files += sorted(p for p in RESULTS.glob("*.md") if p not in files)
+    parts = [
+        "# Benchmarks\n",
+        "Measured numbers only. Each section below was produced by the command it names (run from the "
+        "repository root on this project's 2-core machine) and copied here by "
+        "`python -m replay.collect_benchmarks`. Real data come from `../shared`.\n",
+    ]
+    parts += [f"- [{_title(p)}](#{_anchor(_title(p))})" for p in files]
+    parts.append("")
+    for p in files:
+        text = p.read_text()
+        text = re.sub(r"^(#+) ", lambda m: "#" + m.group(1) + " ", text, flags=re.M)
+        text = re.sub(r"\]\((?!https?:|replay/|/|#)([^)]+\.png)\)", r"](replay/results/\1)", text)
+        parts.append(text.rstrip() + "\n")
+    (ROOT / "BENCHMARKS.md").write_text("\n".join(parts))
+    print(f"BENCHMARKS.md: {len(files)} sections from {', '.join(p.name for p in files)}")
+
+
+def _title(p: Path) -> str:
+    for line in p.read_text().splitlines():
+        if line.startswith("# "):
+            return line[2:].strip()
+    return p.stem
+
+
+def _anchor(title: str) -> str:
+    return re.sub(r"[^a-z0-9 -]", "", title.lower()).replace(" ", "-")
+
+
+if __name__ == "__main__":
+    main()
