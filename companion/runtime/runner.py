@@ -17,7 +17,8 @@ import asyncio
 import signal
 import sys
 import time
-from collections import defaultdict, deque
+from array import array
+from collections import defaultdict
 from typing import Any
 
 from companion.config import Config
@@ -28,6 +29,7 @@ from companion.runtime.link import Batch, LinkStatus, MavlinkLink
 from companion.sources.base import SourceInfo
 
 _STOP = object()
+LATENCY_KEEP = 1 << 20  # latency samples kept per trigger (8 MiB); beyond, thinned by half
 
 
 def percentile_ms(values, q: float) -> float:
@@ -47,7 +49,7 @@ class Runtime:
         self.pipeline: Pipeline = build_pipeline(sink, nav_config=nav_config, extra_stages=[self.injector])
         self.notifier = notifier if notifier is not None else Notifier()
         self.info = SourceInfo(kind="live", location=self.link.spec.url)
-        self.latency_s: dict[str, deque] = defaultdict(lambda: deque(maxlen=500_000))
+        self.latency_s: dict[str, array] = defaultdict(lambda: array("d"))
         self.link_log: list[LinkStatus] = []
         self.batches = 0
         self.stopped_by: str | None = None
@@ -59,7 +61,10 @@ class Runtime:
     def _on_sent(self, rec: GpsInputRecord) -> None:
         if self._rx is not None:
             recv, trigger = self._rx
-            self.latency_s[trigger].append(time.perf_counter() - recv)
+            vals = self.latency_s[trigger]
+            vals.append(time.perf_counter() - recv)
+            if len(vals) >= LATENCY_KEEP:  # bounded memory on a service running for days: keep every other
+                self.latency_s[trigger] = vals[::2]
 
     def _on_status(self, st: LinkStatus) -> None:
         self.link_log.append(st)
