@@ -24,27 +24,6 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 CLI = [sys.executable, "-m", "companion.cli"]
-_SHIM = """
-import sys
-import companion.pipeline as p, companion.runtime.runner as r
-from companion.estimation.integrator import Navigator
-_orig = p.build_pipeline
-def build_pipeline(sink, *, nav_config=None, extra_stages=()):
-    pl = _orig(sink, nav_config=nav_config, extra_stages=extra_stages)
-    pl.stages.insert(0, Navigator())
-    return pl
-p.build_pipeline = r.build_pipeline = build_pipeline
-from companion.cli import main
-sys.exit(main(sys.argv[1:]))
-"""
-
-
-def companion_cmd() -> tuple[list[str], str]:
-    from companion.pipeline import build_pipeline
-
-    if any(type(s).__name__ == "Navigator" for s in build_pipeline(None).stages):
-        return CLI, "companion run"
-    return [sys.executable, "-c", _SHIM], "companion run (Navigator prepended: not yet in build_pipeline)"
 
 
 def proc_sample(pid: int) -> tuple[float, float]:
@@ -80,7 +59,7 @@ def main() -> int:
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     sim.stdout.readline()
-    cmd, label = companion_cmd()
+    cmd, label = CLI, "companion run"
     mcap = args.workdir / "live.mcap"
     comp = subprocess.Popen(
         [*cmd, "run", "--connect", f"tcp:127.0.0.1:{port}", "--inject", "inject", "--out", str(mcap)],

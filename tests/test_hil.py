@@ -15,38 +15,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from companion.record import iter_payloads, summarize
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE_TLOG = REPO / "logs" / "sample_flight.tlog"
 CLI = [sys.executable, "-m", "companion.cli"]
-
-#: Until the Navigator is part of companion.pipeline.build_pipeline, the companion process is started
-#: with it prepended to the pipeline (same objects, same order as the lead's wiring will give); once
-#: build_pipeline has it, the plain CLI is used.
-_SHIM = """
-import sys
-import companion.pipeline as p, companion.runtime.runner as r
-from companion.estimation.integrator import Navigator
-_orig = p.build_pipeline
-def build_pipeline(sink, *, nav_config=None, extra_stages=()):
-    pl = _orig(sink, nav_config=nav_config, extra_stages=extra_stages)
-    pl.stages.insert(0, Navigator())
-    return pl
-p.build_pipeline = r.build_pipeline = build_pipeline
-from companion.cli import main
-sys.exit(main(sys.argv[1:]))
-"""
-
-
-def companion_cmd() -> list[str]:
-    from companion.pipeline import build_pipeline
-
-    if any(type(s).__name__ == "Navigator" for s in build_pipeline(None).stages):
-        return CLI
-    return [sys.executable, "-c", _SHIM]
 
 
 def free_port() -> int:
@@ -76,7 +50,7 @@ class Sim:
 
 def run_companion(port, out, *args, timeout=90):
     return subprocess.Popen(
-        [*companion_cmd(), "run", "--connect", f"tcp:127.0.0.1:{port}", "--out", str(out), *map(str, args)],
+        [*CLI, "run", "--connect", f"tcp:127.0.0.1:{port}", "--out", str(out), *map(str, args)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
 
@@ -191,7 +165,7 @@ def test_live_path_gives_the_replay_payloads(tmp_path):
     sim.finish()
     assert comp.returncode == 0, err
     rep = subprocess.run(
-        [*companion_cmd(), "replay", str(SAMPLE_TLOG), "--out", str(tmp_path / "replay.mcap"), "--quiet"],
+        [*CLI, "replay", str(SAMPLE_TLOG), "--out", str(tmp_path / "replay.mcap"), "--quiet"],
         capture_output=True, text=True, timeout=120,
     )
     assert rep.returncode == 0, rep.stderr
