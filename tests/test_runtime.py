@@ -160,3 +160,30 @@ def test_runtime_records_link_events_and_stops_cleanly(playback, tmp_path):
     assert s.finalised and counts["/link/status"] >= 3 and counts["/input/imu"] > 50
     assert any("link autopilot" in line for line in logs)
     assert not rt.link.thread_alive
+
+
+def test_serial_transport_on_a_pty():
+    """The termios serial transport, on a pseudo-terminal standing in for the autopilot's UART."""
+    import os
+
+    from pymavlink.dialects.v20 import ardupilotmega as mav
+
+    from companion.runtime.transport import open_transport
+    from companion.sources.live import parse_url
+
+    master, slave = os.openpty()
+    try:
+        tr = open_transport(parse_url(f"{os.ttyname(slave)},921600"))
+        frame = bytes(mav.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3).pack(mav.MAVLink(None, 1, 1)))
+        os.write(master, frame)
+        got = b""
+        for _ in range(20):
+            got += tr.recv(0.1)
+            if len(got) >= len(frame):
+                break
+        assert got == frame
+        assert tr.write(b"\xfd\x00") and os.read(master, 16) == b"\xfd\x00"
+        tr.close()
+    finally:
+        os.close(master)
+        os.close(slave)
