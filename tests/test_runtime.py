@@ -187,3 +187,26 @@ def test_serial_transport_on_a_pty():
     finally:
         os.close(master)
         os.close(slave)
+
+
+def test_udp_link_learns_the_peer_and_requests_streams(playback):
+    """udpin: the companion answers whoever sends (the vehicle on udpout), as with a telemetry radio bridge."""
+    port = free_port()
+    sim = VehicleSim(playback, f"udpout:127.0.0.1:{port}", start_s=20.0)
+    th = threading.Thread(target=sim.run, daemon=True)
+    items: list = []
+
+    async def main():
+        link = MavlinkLink(LinkConfig(connect=f"udpin:127.0.0.1:{port}"), StreamConfig())
+        link.start(asyncio.get_running_loop(), items.append)
+        th.start()
+        await asyncio.sleep(4.0)
+        await asyncio.to_thread(link.stop)
+        return link
+
+    link = asyncio.run(main())
+    sim.stop()
+    th.join(5)
+    assert link.target == (1, 1) and len(sim.stats.requests) == 4
+    imu = [e for i in items if isinstance(i, Batch) for e in i.events if isinstance(e, ImuSample)]
+    assert len(imu) > 50
