@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections import Counter, defaultdict
+from collections import Counter, defaultdict, deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,12 +29,36 @@ class Gap:
         return self.end_s - self.start_s
 
 
-def _median_rate_hz(times: list[float]) -> float | None:
-    if len(times) < 2:
-        return None
-    dt = np.diff(np.asarray(times))
-    dt = dt[dt > 0]
-    return float(1.0 / np.median(dt)) if dt.size else None
+#: Rates come from the median of the most recent intervals (bounded memory for a live service).
+RATE_WINDOW = 20_000
+
+
+class _Intervals:
+    """Arrival statistics of one stream in bounded memory: count, first/last time, recent intervals,
+    and every interval longer than ``keep_over_s`` (the gap candidates)."""
+
+    def __init__(self, keep_over_s: float) -> None:
+        self.count = 0
+        self.first_s: float | None = None
+        self.last_s: float | None = None
+        self.recent: deque[float] = deque(maxlen=RATE_WINDOW)
+        self.keep_over_s = keep_over_s
+        self.long: list[tuple[float, float]] = []
+
+    def add(self, t_s: float) -> None:
+        if self.last_s is not None:
+            dt = t_s - self.last_s
+            if dt > 0:
+                self.recent.append(dt)
+            if dt > self.keep_over_s:
+                self.long.append((self.last_s, t_s))
+        else:
+            self.first_s = t_s
+        self.count += 1
+        self.last_s = t_s if self.last_s is None else max(self.last_s, t_s)
+
+    def rate_hz(self) -> float | None:
+        return float(1.0 / np.median(np.fromiter(self.recent, float))) if self.recent else None
 
 
 @dataclass
@@ -43,22 +67,22 @@ class StreamStats:
     first_s: float | None = None
     last_s: float | None = None
     reboots: int = 0
-    _fix_times: list[float] = field(default_factory=list)
+    _fixes: _Intervals = field(default_factory=lambda: _Intervals(GNSS_GAP_MIN_S))
     _gnss_rows: int = 0
-    _imu_times: dict[int, list[float]] = field(default_factory=lambda: defaultdict(list))
+    _imu: dict[int, _Intervals] = field(default_factory=lambda: defaultdict(lambda: _Intervals(float("inf"))))
     _stream_gaps: list[Gap] = field(default_factory=list)
 
     def add(self, ev: Event) -> None:
         name = type(ev).__name__
         if isinstance(ev, ImuSample):
             self.counts[f"{name}[{ev.imu_index}]"] += 1
-            self._imu_times[ev.imu_index].append(ev.t_s)
+            self._imu[ev.imu_index].add(ev.t_s)
         elif isinstance(ev, GnssFix):
             self.counts[f"{name}[{ev.instance}]"] += 1
             if ev.instance == 0:
                 self._gnss_rows += 1
                 if ev.has_position:
-                    self._fix_times.append(ev.t_s)
+                    self._fixes.add(ev.t_s)
         else:
             self.counts[name] += 1
             if isinstance(ev, Reboot):
@@ -76,32 +100,32 @@ class StreamStats:
 
     @property
     def gnss_rate_hz(self) -> float | None:
-        return _median_rate_hz(self._fix_times)
+        return self._fixes.rate_hz()
 
     def imu_rates_hz(self) -> dict[int, float | None]:
-        return {i: _median_rate_hz(t) for i, t in sorted(self._imu_times.items())}
+        return {i: iv.rate_hz() for i, iv in sorted(self._imu.items())}
 
     @property
     def gnss_fixes(self) -> int:
-        return len(self._fix_times)
+        return self._fixes.count
 
     def gnss_gaps(self) -> list[Gap]:
         """Spans without a usable primary GNSS fix, including before the first and after the last."""
         if self.first_s is None:
             return []
-        t = self._fix_times
-        if not t:
+        fx = self._fixes
+        if not fx.count:
             return [Gap("gnss", self.first_s, self.last_s, "no GNSS fix in the whole stream")]
         rate = self.gnss_rate_hz
         limit = max(GNSS_GAP_MIN_S, GNSS_GAP_FACTOR / rate) if rate else GNSS_GAP_MIN_S
         gaps = []
-        if t[0] - self.first_s > limit:
-            gaps.append(Gap("gnss", self.first_s, t[0], "no fix yet at the start"))
-        arr = np.asarray(t)
-        for i in np.nonzero(np.diff(arr) > limit)[0]:
-            gaps.append(Gap("gnss", float(arr[i]), float(arr[i + 1]), "no usable fix received"))
-        if self.last_s - t[-1] > limit:
-            gaps.append(Gap("gnss", t[-1], self.last_s, "fix lost until the end of the stream"))
+        if fx.first_s - self.first_s > limit:
+            gaps.append(Gap("gnss", self.first_s, fx.first_s, "no fix yet at the start"))
+        for a, b in fx.long:
+            if b - a > limit:
+                gaps.append(Gap("gnss", a, b, "no usable fix received"))
+        if self.last_s - fx.last_s > limit:
+            gaps.append(Gap("gnss", fx.last_s, self.last_s, "fix lost until the end of the stream"))
         return gaps
 
     def stream_gaps(self) -> list[Gap]:
@@ -114,11 +138,11 @@ class StreamStats:
 
     def warnings(self) -> list[str]:
         out = []
-        if not self._imu_times:
+        if not self._imu:
             out.append("no IMU data in this stream: inertial navigation is not possible")
         if self._gnss_rows == 0:
             out.append("no GNSS messages in this stream")
-        elif not self._fix_times:
+        elif not self._fixes.count:
             out.append("GNSS messages present but never a usable fix")
         return out
 

@@ -20,25 +20,46 @@ from companion.events import Event, Reboot
 
 @dataclass
 class VehicleClock:
+    """Boot time -> vehicle time. A reboot is declared only once ``confirm_messages`` messages in a row
+    sit more than ``reboot_jump_s`` behind the clock; until then they are held back (``t_s`` None), so one
+    very late sample is dropped as late instead of shifting the whole clock.
+
+    ``derived=True`` marks a boot time extrapolated from another message's (a MAVLink message without
+    its own time stamp): it neither confirms nor cancels a pending reboot.
+    """
+
     reboot_jump_s: float = 2.0
+    confirm_messages: int = 3
     offset_s: float = 0.0
     max_boot_s: float | None = None
     reboots: int = 0
+    held_back: int = 0  # messages dropped while a backward jump was unconfirmed
+    _candidate: list[float] = field(default_factory=list)
 
-    def to_vehicle(self, boot_s: float) -> tuple[float, Reboot | None]:
-        """Vehicle time for a boot time; the second item is a Reboot event when one was detected."""
-        reboot = None
+    def to_vehicle(self, boot_s: float, derived: bool = False) -> tuple[float | None, Reboot | None]:
+        """Vehicle time for a boot time (None: held back), and a Reboot event when one is confirmed."""
         if self.max_boot_s is None:
             self.max_boot_s = boot_s
-        elif boot_s < self.max_boot_s - self.reboot_jump_s:
-            prev = self.max_boot_s
+            return self.offset_s + boot_s, None
+        if derived:
+            return self.offset_s + max(boot_s, 0.0), None
+        if boot_s < self.max_boot_s - self.reboot_jump_s:
+            if self._candidate and boot_s < self._candidate[-1] - self.reboot_jump_s:
+                self._candidate.clear()  # not one new epoch either: start over
+            self._candidate.append(boot_s)
+            if len(self._candidate) < self.confirm_messages:
+                self.held_back += 1
+                return None, None
+            prev, first = self.max_boot_s, self._candidate[0]
             self.offset_s += prev
-            self.max_boot_s = boot_s
+            self.max_boot_s = max(self._candidate)
+            self._candidate.clear()
             self.reboots += 1
-            reboot = Reboot(t_s=self.offset_s + boot_s, previous_boot_s=prev, new_boot_s=boot_s)
-        elif boot_s > self.max_boot_s:
+            return self.offset_s + boot_s, Reboot(t_s=self.offset_s + first, previous_boot_s=prev, new_boot_s=first)
+        self._candidate.clear()  # back on the current epoch: what jumped back was only late
+        if boot_s > self.max_boot_s:
             self.max_boot_s = boot_s
-        return self.offset_s + boot_s, reboot
+        return self.offset_s + boot_s, None
 
 
 @dataclass(order=True)

@@ -18,17 +18,34 @@ def test_clock_jitter_is_not_a_reboot():
     assert rb is None and t == pytest.approx(9.8)
 
 
-def test_clock_reboot_continues_monotonic():
+def test_clock_reboot_confirmed_after_three_messages_continues_monotonic():
     c = VehicleClock()
     for b in np.arange(0.0, 300.0, 0.02):
         c.to_vehicle(float(b))
-    t, rb = c.to_vehicle(0.5)
+    assert c.to_vehicle(0.5) == (None, None)  # held back until confirmed
+    assert c.to_vehicle(0.52) == (None, None)
+    t, rb = c.to_vehicle(0.54)
     assert isinstance(rb, Reboot)
     assert rb.previous_boot_s == pytest.approx(299.98) and rb.new_boot_s == 0.5
-    assert t == pytest.approx(299.98 + 0.5)
+    assert t == pytest.approx(299.98 + 0.54)
     t2, rb2 = c.to_vehicle(1.0)
     assert rb2 is None and t2 == pytest.approx(300.98)
-    assert c.reboots == 1
+    assert c.reboots == 1 and c.held_back == 2
+
+
+def test_clock_one_very_late_sample_is_dropped_not_a_reboot():
+    c = VehicleClock()
+    for b in np.arange(0.0, 100.0, 0.02):
+        c.to_vehicle(float(b))
+    assert c.to_vehicle(95.0) == (None, None)  # 5 s late
+    t, rb = c.to_vehicle(100.0)
+    assert rb is None and t == pytest.approx(100.0) and c.reboots == 0 and c.offset_s == 0.0
+    # extrapolated (derived) boot times neither confirm nor cancel a pending reboot
+    c.to_vehicle(1.0)
+    c.to_vehicle(50.0, derived=True)
+    c.to_vehicle(1.02)
+    t, rb = c.to_vehicle(1.04)
+    assert isinstance(rb, Reboot) and t == pytest.approx(100.0 + 1.04)
 
 
 def _wire(msg):
@@ -45,7 +62,8 @@ def test_decoder_reboot_mid_stream_emits_reboot_and_stays_monotonic():
         out += dec.decode(_wire(mavlink.MAVLink_attitude_message(ms, 0.1, 0.2, 0.3, 0, 0, 0)), i * 0.1)
     reboots = [e for e in out if isinstance(e, Reboot)]
     att = [e for e in out if isinstance(e, Attitude)]
-    assert len(reboots) == 1 and len(att) == len(boots_ms)
+    assert len(reboots) == 1 and len(att) == len(boots_ms) - 2  # two held back until the reboot is confirmed
+    assert sum(n for why, n in dec.dropped.items() if why.startswith("time jumped back")) == 2
     t = np.array([e.t_s for e in att])
     assert np.all(np.diff(t) > 0), "vehicle time must keep increasing through the reboot"
     assert reboots[0].previous_boot_s == pytest.approx(119.9)

@@ -35,10 +35,13 @@ class DataflashDecoder:
     def _drop(self, why: str) -> None:
         self.dropped[why] = self.dropped.get(why, 0) + 1
 
-    def _time(self, boot_s: float, out: list[Event]) -> float:
+    def _time(self, boot_s: float, out: list[Event]) -> float | None:
+        """Vehicle time (None: drop the row, its time jumped back unconfirmed); Reboot events into ``out``."""
         t_s, reboot = self.clock.to_vehicle(boot_s)
         if reboot is not None:
             out.append(reboot)
+        if t_s is None:
+            self._drop("time jumped back (late, or a reboot not yet confirmed)")
         return t_s
 
     def decode(self, msg) -> list[Event]:
@@ -72,6 +75,8 @@ class DataflashDecoder:
             self._drop("IMU non-finite")
             return out
         t_s = self._time(boot_s, out)
+        if t_s is None:
+            return out
         out.append(ImuSample(t_s=t_s, accel_frd_mps2=acc, gyro_frd_radps=gyr, imu_index=instance))
         return out
 
@@ -105,6 +110,8 @@ class DataflashDecoder:
             ve = spd * math.sin(math.radians(crs))
         hdop = d.get("HDop")
         t_s = self._time(boot_s, out)
+        if t_s is None:
+            return out
         kwargs = dict(
             t_s=t_s,
             fix_type=status,
@@ -168,6 +175,8 @@ class DataflashDecoder:
             return []
         out: list[Event] = []
         t_s = self._time(boot_s, out)
+        if t_s is None:
+            return out
         yaw = (y + 180.0) % 360.0 - 180.0
         out.append(
             Attitude(t_s=t_s, roll_rad=math.radians(r), pitch_rad=math.radians(p), yaw_rad=math.radians(yaw))
@@ -190,5 +199,7 @@ class DataflashDecoder:
             boot_s = self.clock.max_boot_s  # AC 3.x MSG rows carry no time: place at latest
         out: list[Event] = []
         t_s = self._time(boot_s, out)
+        if t_s is None:
+            return out
         out.append(StatusText(t_s=t_s, severity=MAV_SEVERITY_INFO, text=text))
         return out

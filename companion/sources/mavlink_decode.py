@@ -69,17 +69,21 @@ class MavlinkDecoder:
 
     # -- time ---------------------------------------------------------------------------------
     def _stamp(self, boot_s: float | None, recv_s: float, out: list[Event]) -> float | None:
-        """Vehicle time for a message; emits a Reboot event into ``out`` when boot time jumps back."""
-        if boot_s is None:
+        """Vehicle time for a message (None: drop it); emits a Reboot event into ``out`` when one is confirmed."""
+        derived = boot_s is None
+        if derived:
             if self._last_boot_s is None:
                 return None
             boot_s = self._last_boot_s + max(0.0, recv_s - (self._last_boot_recv_s or recv_s))
-        else:
-            self._last_boot_s = boot_s
-            self._last_boot_recv_s = recv_s
-        t_s, reboot = self.clock.to_vehicle(boot_s)
+        t_s, reboot = self.clock.to_vehicle(boot_s, derived=derived)
         if reboot is not None:
             out.append(reboot)
+        if t_s is None:
+            self.dropped["time jumped back (late, or a reboot not yet confirmed)"] += 1
+            return None
+        if not derived:
+            self._last_boot_s = boot_s
+            self._last_boot_recv_s = recv_s
         return t_s
 
     # -- messages -----------------------------------------------------------------------------
@@ -132,7 +136,8 @@ class MavlinkDecoder:
             boot_s = units.s_from_us(msg.time_usec)
         t_s = self._stamp(boot_s, recv_s, out)
         if t_s is None:
-            self.dropped["GPS before any boot time"] += 1
+            if self._last_boot_s is None:
+                self.dropped["GPS before any boot time"] += 1
             return
         fix = int(msg.fix_type)
         has_pos = fix >= FixType.FIX_2D and not (msg.lat == 0 and msg.lon == 0)
@@ -196,11 +201,13 @@ class MavlinkDecoder:
             self.dropped["ATTITUDE non-finite"] += 1
             return
         t_s = self._stamp(units.s_from_ms(msg.time_boot_ms), recv_s, out)
+        if t_s is None:
+            return
         out.append(Attitude(t_s=t_s, roll_rad=msg.roll, pitch_rad=msg.pitch, yaw_rad=msg.yaw))
 
     def _system_time(self, msg, recv_s: float, out: list[Event]) -> None:
         t_s = self._stamp(units.s_from_ms(msg.time_boot_ms), recv_s, out)
-        if msg.time_unix_usec > 0:
+        if t_s is not None and msg.time_unix_usec > 0:
             out.append(SystemTime(t_s=t_s, unix_time_s=units.s_from_us(msg.time_unix_usec)))
 
     def _statustext(self, msg, recv_s: float, out: list[Event]) -> None:
