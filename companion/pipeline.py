@@ -67,6 +67,7 @@ class Pipeline:
                 produced += self.stages[i].process(item)
             for out in produced:
                 self._emit(out)
+            self.outputs += len(produced)
             items = list(items) + produced if produced else items
 
     def _emit(self, item: Any) -> None:
@@ -75,14 +76,13 @@ class Pipeline:
             track = _MAP_TRACKS.get(type(item).__name__)
             if track is not None and _finite(item.lat_deg, item.lon_deg, item.alt_msl_m):
                 self.sink.write_location(track, item.t_s, item.lat_deg, item.lon_deg, item.alt_msl_m, cov_enu_m2=_cov_enu(item))
-        if not isinstance(item, Event):
-            self.outputs += 1
 
     def finish(self) -> None:
         for i, stage in enumerate(self.stages):
             outs = stage.finish()
             for out in outs:
                 self._emit(out)
+            self.outputs += len(outs)
             if outs:
                 self._run_stages(outs, i + 1)
 
