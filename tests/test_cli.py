@@ -172,3 +172,23 @@ def test_live_udp_ingest_records_events(tmp_path):
     imu = sum(n for topic, n in counts.items() if topic.startswith("/input/imu"))
     assert counts.get("/input/gnss", 0) > 50 and imu > 100
     assert "other system 255/190" in stdout  # the ground station's messages were dropped, and said so
+
+
+def test_log_without_any_gnss_fix_says_so(tmp_path):
+    """log171's first 33 s have GPS rows but no fix: a cut there replays cleanly and warns."""
+    cut = tmp_path / "nofix.bin"
+    cut.write_bytes(require(LOG171).read_bytes()[:300_000])
+    res = run_cli("replay", cut, "--out", tmp_path / "nofix.mcap")
+    assert res.returncode == 3 and "Traceback" not in res.stderr  # 3: the cut leaves a partial last record
+    assert "GNSS messages present but never a usable fix" in res.stdout
+    assert "no GNSS fix in the whole stream" in res.stdout
+    topics = {t.topic: t.count for t in summarize(tmp_path / "nofix.mcap").topics}
+    assert topics["/input/gnss"] > 10 and "/map/gnss" not in topics
+
+
+def test_realtime_pacing_follows_vehicle_time(tmp_path):
+    t0 = time.perf_counter()
+    res = run_cli("replay", require(LOG_ERLE), "--out", tmp_path / "rt.mcap", "--realtime", "40")
+    wall = time.perf_counter() - t0
+    assert res.returncode == 0
+    assert wall >= 112.0 / 40  # 112 s of vehicle time at 40x cannot finish sooner
