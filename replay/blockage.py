@@ -243,6 +243,22 @@ def throughput(log: LogData, cfg: NavigatorConfig) -> tuple[float, float, float,
     return log.duration_s / cpu, wall, cpu, mode
 
 
+def _apply_overrides(cfg: NavigatorConfig, overrides: list[str]) -> NavigatorConfig:
+    """``FIELD=VALUE`` strings -> a NavigatorConfig with those fields replaced (typed like the default)."""
+    types = {f.name: type(getattr(cfg, f.name)) for f in dataclasses.fields(cfg)}
+    kw = {}
+    for item in overrides:
+        name, sep, val = item.partition("=")
+        if not sep or name not in types:
+            raise SystemExit(f"--set {item!r}: expected FIELD=VALUE with FIELD one of {sorted(types)}")
+        ty = types[name]
+        if ty is bool:
+            kw[name] = val.strip().lower() in ("1", "true", "yes", "on")
+        else:
+            kw[name] = ty(val)
+    return dataclasses.replace(cfg, **kw)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--logs-dir", type=Path, default=SHARED_LOGS)
@@ -250,12 +266,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--offsets", type=int, default=4, help="start-time phases per blockage length")
     ap.add_argument("--decimate-hz", type=float, default=1.0, help="GNSS rate for the blockage runs (0: native)")
     ap.add_argument("--gnss-delay-s", type=float, default=NavigatorConfig().gnss_delay_s)
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="FIELD=VALUE",
+                    help="override a NavigatorConfig field (e.g. --set fuse_attitude_yaw=true); repeatable")
     ap.add_argument("--out", type=Path, default=None, help="write the markdown tables here")
     ap.add_argument("--plots", type=Path, default=None, help="directory for PNG plots")
     args = ap.parse_args(argv)
     from tqdm import tqdm
 
-    cfg = NavigatorConfig(gnss_delay_s=args.gnss_delay_s)
+    cfg = _apply_overrides(NavigatorConfig(gnss_delay_s=args.gnss_delay_s), args.overrides)
     dec = args.decimate_hz or None
     paths = sorted(p for p in args.logs_dir.glob("*") if p.suffix.lower() in (".bin", ".tlog"))
     if not paths:

@@ -37,6 +37,7 @@ Pure: no asyncio, no pymavlink, no wall clock.
 
 from __future__ import annotations
 
+import bisect
 import heapq
 import math
 from collections import deque
@@ -87,6 +88,33 @@ class NavigatorConfig:
     epoch, kept in a short per-IMU-step history that follows every correction. On the shared logs the
     IMU accelerations best match the GNSS velocity changes ~0.2 s earlier, but modelling it (0.15 s) helped
     8 s blockages (3.8 vs 4.0 m) and hurt the 1 Hz in-between fill (0.33 vs 0.29 m), so the default is 0.
+    ``ahrs_check``: the autopilot attitude is only as good as its heading. A DCM AHRS corrects tilt with
+    GNSS acceleration resolved through its heading, so a wrong heading (the Erle PXF log: compass ~90 deg
+    off) also corrupts its roll/pitch during manoeuvres. The navigator checks the autopilot's heading
+    against GNSS, independently of its own INS state: horizontal GNSS velocity changes over
+    >= ``ahrs_check_interval_s`` are compared with the integral of the IMU specific force resolved with
+    the autopilot's attitude over the same interval (gravity and Coriolis have ~no horizontal part);
+    with exponential forgetting (``ahrs_check_tau_s``) the heading offset is the angle of
+    sum(dv_gnss * conj(dv_ahrs)) (complex N + iE), valid once both sums of squares exceed
+    ``ahrs_check_min_dv_mps``^2 and the normalised coherence is >= ``ahrs_check_min_coherence``. If the
+    offset exceeds ``ahrs_max_offset_deg`` the autopilot attitude is declared inconsistent (until the
+    offset falls below ``ahrs_ok_offset_deg``). Its tilt is then fused with a sigma that includes the error
+    a heading offset d induces: the AHRS levels on an acceleration rotated by d, off by 2 sin(d/2) |a_h|,
+    i.e. a tilt error of about 2 sin(d/2) a_rms / g, with a_rms the recent RMS horizontal GNSS
+    acceleration (added in quadrature to ``att_sigma_tilt_rad``). The INS heading, which was
+    initialised from the autopilot, is re-aligned to autopilot heading + offset (a coarse in-motion
+    alignment, cf. Groves 2013 sec. 14.2; the KF's psi is a small-angle state and absorbs a large heading
+    error only slowly) when it differs from that by more than ``yaw_align_min_deg`` and 3 x the KF's yaw
+    sigma; the yaw variance is then reset to ``yaw_align_sigma_rad``^2.
+    ``hold_prior``: during a blockage the INS error grows without bound (t^2 .. t^3), while a loitering or
+    circling multicopter stays near where it was. The navigator learns, causally from the GNSS fixes it has
+    accepted, the vehicle's mean squared displacement per axis after a lag tau (D(tau) at whole-second
+    lags up to ``hold_prior_max_lag_s``, exponential forgetting ``hold_prior_tau_s``): the last fix is then
+    an estimate of the current position with variance D(age) + fix variance, independent of the INS
+    drift. From ``hold_prior_min_age_s`` after the last fix, the output position is the product of the two
+    Gaussians (per axis: inverse-variance weights from the KF covariance and D), so it moves toward the
+    last fix only as far as the filter's own covariance says its drift exceeds the vehicle's typical
+    excursion. Output only: the INS and KF state are not changed, so aiding resumes from the INS.
     """
 
     knn: KnnConfig = field(default_factory=KnnConfig)
@@ -127,6 +155,20 @@ class NavigatorConfig:
     init_sigma_att_rad: float = 0.05
     init_sigma_yaw_rad: float = 0.2
     kinematic_accel_sigma_mps2: float = 2.0
+    ahrs_check: bool = True
+    ahrs_check_interval_s: float = 0.9
+    ahrs_check_tau_s: float = 20.0
+    ahrs_check_min_dv_mps: float = 2.0
+    ahrs_check_min_coherence: float = 0.5
+    ahrs_max_offset_deg: float = 30.0
+    ahrs_ok_offset_deg: float = 15.0
+    yaw_align_min_deg: float = 15.0
+    yaw_align_sigma_rad: float = 0.1
+    att_fuse_interval_s: float = 0.0
+    hold_prior: bool = False
+    hold_prior_min_age_s: float = 1.5
+    hold_prior_max_lag_s: int = 60
+    hold_prior_tau_s: float = 120.0
 
     def __post_init__(self) -> None:
         if self.output_rate_hz <= 0 or self.min_imu_rate_hz <= 0:
@@ -175,6 +217,28 @@ class Navigator:
         self._f_sum = [0.0, 0.0, 0.0]
         self._f_n = 0
         self._hist: deque[list[float]] = deque()  # [t, n, e, d, vn, ve, vd] per IMU step, last delay + 0.2 s
+        # autopilot heading check: specific force resolved with the autopilot attitude, integrated since
+        # the anchor fix; exponentially forgotten correlation sums
+        self._att_fused_t = -math.inf
+        self._att_c: tuple[float, ...] | None = None  # first two rows of the autopilot's C_b^n
+        self._sf_dv = [0.0, 0.0]
+        self._al_anchor: tuple[float, float, float] | None = None  # (t, vn, ve) of the anchor fix
+        self._al_c = 0j
+        self._al_ef = 0.0
+        self._al_eg = 0.0
+        self._al_acc2 = 0.0  # forgotten sum of squared horizontal GNSS accelerations, and its weight
+        self._al_w = 0.0
+        self.ahrs_heading_offset_rad = math.nan  # GNSS-observed heading minus autopilot heading
+        self.ahrs_consistent = True
+        self.yaw_alignments: list[tuple[float, float]] = []  # (t, applied INS heading rotation rad)
+        # motion prior for long blockages: accepted fixes, forgotten sums of squared displacement per lag
+        self._fix_hist_t: list[float] = []
+        self._fix_hist_p: list[tuple[float, float, float]] = []
+        self._last_fix_ned: tuple[float, float, float] | None = None
+        self._last_fix_var: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self._msd = np.zeros((c.hold_prior_max_lag_s + 1, 3))
+        self._msd_w = np.zeros(c.hold_prior_max_lag_s + 1)
+        self._msd_t: float | None = None
         # kinematic filter
         self._kin: KalmanFilter | None = None
         self._kin_t = 0.0
@@ -220,7 +284,12 @@ class Navigator:
                 self._on_fix(ev)
         elif isinstance(ev, Attitude):
             self._att = ev
-            if self.mode == "ins" and self.config.fuse_attitude:
+            if self.config.ahrs_check:
+                C = dcm_from_quat(quat_from_euler(ev.roll_rad, ev.pitch_rad, ev.yaw_rad))
+                self._att_c = tuple(float(x) for x in C[0:2].ravel())
+            if (self.mode == "ins" and self.config.fuse_attitude
+                    and ev.t_s - self._att_fused_t >= self.config.att_fuse_interval_s):
+                self._att_fused_t = ev.t_s
                 self._ins_attitude_update(ev)
 
     def _set_mode(self, t: float, mode: str, reason: str, key: str) -> None:
@@ -240,7 +309,14 @@ class Navigator:
         c = self.config
         t = ev.t_s
         self._imu_times.append(t)
+        prev_t = self._last_imu_t
         self._last_imu_t = t
+        ac = self._att_c
+        if ac is not None and prev_t is not None and 0 < t - prev_t <= c.max_imu_step_s:
+            dt = t - prev_t
+            a = ev.accel_frd_mps2
+            self._sf_dv[0] += (ac[0] * a[0] + ac[1] * a[1] + ac[2] * a[2]) * dt
+            self._sf_dv[1] += (ac[3] * a[0] + ac[4] * a[1] + ac[5] * a[2]) * dt
         ins = self.ins
         if ins is None or self.mode != "ins":
             return
@@ -324,6 +400,8 @@ class Navigator:
             vel = (ev.vel_n_mps, ev.vel_e_mps, ev.vel_d_mps if ev.vel_d_mps is not None else math.nan)
         self._update_mode(t, ev, z, vel)
         accepted = True
+        if c.ahrs_check and vel is not None:
+            self._ahrs_check(t, vel)
         if self.mode == "ins":
             accepted = self._ins_position_update(t, z, sh, sv, "gnss_pos", (gh, gv))
             if accepted and vel is not None and c.fuse_gnss_velocity and math.isfinite(vel[2]):
@@ -337,6 +415,8 @@ class Navigator:
         if accepted:
             self._used.add("gnss")
             self._last_fix_t = t
+            if c.hold_prior:
+                self._learn_motion(t, z, sh, sv)
             self.predictor.add_fix(t, z, sh, sv, None if vel is None or not math.isfinite(vel[2]) else vel)
         if self._next_tick is None:
             self._next_tick = math.floor(t / self._tick_dt) + 1
@@ -393,8 +473,110 @@ class Navigator:
         )
         self._kf = kf
         self._kf_t = t_ins
+        if not self.ahrs_consistent and math.isfinite(self.ahrs_heading_offset_rad):
+            self._align_yaw(t_ins)
         self._f_sum = [0.0, 0.0, 0.0]
         self._f_n = 0
+
+    def _ahrs_check(self, t: float, vel) -> None:
+        """Autopilot heading vs GNSS (see ``NavigatorConfig.ahrs_check``); re-align the INS if it is off."""
+        c = self.config
+        a = self._al_anchor
+        if a is None or t - a[0] > 3.0 * c.ahrs_check_interval_s + 1.0:  # start, or a gap: re-anchor
+            self._al_anchor = (t, vel[0], vel[1])
+            self._sf_dv = [0.0, 0.0]
+            return
+        if t - a[0] < c.ahrs_check_interval_s:
+            return
+        zg = complex(vel[0] - a[1], vel[1] - a[2])
+        zf = complex(self._sf_dv[0], self._sf_dv[1])
+        self._al_anchor = (t, vel[0], vel[1])
+        self._sf_dv = [0.0, 0.0]
+        w = math.exp(-(t - a[0]) / c.ahrs_check_tau_s)
+        self._al_c = self._al_c * w + zg * zf.conjugate()
+        self._al_ef = self._al_ef * w + abs(zf) ** 2
+        self._al_eg = self._al_eg * w + abs(zg) ** 2
+        self._al_acc2 = self._al_acc2 * w + (abs(zg) / (t - a[0])) ** 2
+        self._al_w = self._al_w * w + 1.0
+        if min(self._al_ef, self._al_eg) < c.ahrs_check_min_dv_mps**2:
+            return
+        if abs(self._al_c) < c.ahrs_check_min_coherence * math.sqrt(self._al_ef * self._al_eg):
+            return
+        off = math.atan2(self._al_c.imag, self._al_c.real)
+        self.ahrs_heading_offset_rad = off
+        if self.ahrs_consistent and abs(off) > math.radians(c.ahrs_max_offset_deg):
+            self.ahrs_consistent = False
+        elif not self.ahrs_consistent and abs(off) < math.radians(c.ahrs_ok_offset_deg):
+            self.ahrs_consistent = True
+        if not self.ahrs_consistent and self.mode == "ins":
+            self._align_yaw(t)
+
+    def _learn_motion(self, t: float, z, sh: float, sv: float) -> None:
+        """Update D(lag) = mean squared displacement per axis with the new fix (see ``hold_prior``)."""
+        c = self.config
+        ht, hp = self._fix_hist_t, self._fix_hist_p
+        if self._msd_t is not None:
+            w = math.exp(-(t - self._msd_t) / c.hold_prior_tau_s)
+            self._msd *= w
+            self._msd_w *= w
+        self._msd_t = t
+        for lag in range(1, c.hold_prior_max_lag_s + 1):
+            i = bisect.bisect_left(ht, t - lag - 0.5)
+            if i >= len(ht) or ht[i] > t - lag + 0.5:
+                continue
+            p = hp[i]
+            self._msd[lag, 0] += (z[0] - p[0]) ** 2
+            self._msd[lag, 1] += (z[1] - p[1]) ** 2
+            self._msd[lag, 2] += (z[2] - p[2]) ** 2
+            self._msd_w[lag] += 1.0
+        ht.append(t)
+        hp.append(tuple(z))
+        if len(ht) > 64 and ht[0] < t - c.hold_prior_max_lag_s - 2.0:
+            k = bisect.bisect_left(ht, t - c.hold_prior_max_lag_s - 1.0)
+            del ht[:k], hp[:k]
+        self._last_fix_ned = tuple(z)
+        self._last_fix_var = (sh * sh, sh * sh, sv * sv)
+
+    def _hold_blend(self, tg: float, ned, P_diag):
+        """Output position and variances after the product with the last-fix motion prior, or None."""
+        c = self.config
+        if self._last_fix_ned is None or self._last_fix_t is None:
+            return None
+        age = tg - self._last_fix_t
+        if age < c.hold_prior_min_age_s:
+            return None
+        lo = min(int(math.floor(age)), c.hold_prior_max_lag_s)
+        hi = min(lo + 1, c.hold_prior_max_lag_s)
+        if self._msd_w[lo] < 5.0 or self._msd_w[hi] < 5.0:
+            return None
+        f = min(max(age - lo, 0.0), 1.0) if hi > lo else 0.0
+        d = (1 - f) * self._msd[lo] / self._msd_w[lo] + f * self._msd[hi] / self._msd_w[hi]
+        out, var = [], []
+        for i in range(3):
+            q = d[i] + self._last_fix_var[i]
+            p = P_diag[i]
+            k = p / (p + q) if p + q > 0 else 0.0
+            out.append(ned[i] + k * (self._last_fix_ned[i] - ned[i]))
+            var.append(p * (1 - k))
+        return out, var
+
+    def _align_yaw(self, t: float) -> None:
+        """Rotate the INS heading to autopilot heading + measured offset if it is far from it."""
+        c = self.config
+        if self._att is None or self.ins is None:
+            return
+        target = self._att.yaw_rad + self.ahrs_heading_offset_rad
+        d = (target - self.ins.euler()[2] + math.pi) % (2 * math.pi) - math.pi
+        sig = math.sqrt(max(self._kf.P[8, 8], 0.0))
+        if abs(d) < max(math.radians(c.yaw_align_min_deg), 3.0 * sig):
+            return
+        self._ins_predict(max(t, self._kf_t))
+        self._correct_ins((0, 0, 0), (0, 0, 0), (0.0, 0.0, d), (0, 0, 0), (0, 0, 0))  # exact rotation about down
+        P = self._kf.P
+        P[8, :] = 0.0
+        P[:, 8] = 0.0
+        P[8, 8] = c.yaw_align_sigma_rad**2
+        self.yaw_alignments.append((t, d))
 
     def _ins_predict(self, t: float) -> None:
         """Propagate the error covariance to ``t`` (eq. 9) with the interval's mean specific force."""
@@ -526,13 +708,24 @@ class Navigator:
     def _ins_attitude_update(self, ev: Attitude) -> None:
         c = self.config
         self._ins_predict(max(ev.t_s, self._kf_t))
-        c_meas = dcm_from_quat(quat_from_euler(ev.roll_rad, ev.pitch_rad, ev.yaw_rad))
+        fuse_yaw = c.fuse_attitude_yaw and self.ahrs_consistent
+        # Tilt-only measurement: the autopilot's roll/pitch fix the gravity direction in the body frame
+        # whatever its heading, so the measured attitude is built with the INS's own heading. (Built with
+        # the autopilot's heading, a heading disagreement of d rotates and mixes the roll/pitch innovations
+        # through the small-angle extraction below: at d ~ 90 deg, as in the Erle PXF log, a roll error was
+        # read as a pitch error.)
+        yaw_meas = ev.yaw_rad if fuse_yaw else self.ins.euler()[2]
+        c_meas = dcm_from_quat(quat_from_euler(ev.roll_rad, ev.pitch_rad, yaw_meas))
         E = c_meas @ self.ins.dcm().T  # = I + [psi x] for small psi
         y = 0.5 * np.array([E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]])
         H = np.zeros((3, 15))
         H[:, 6:9] = np.eye(3)
-        s_yaw = c.att_sigma_yaw_rad if c.fuse_attitude_yaw else 1e3  # 1e3 rad: no heading information
-        R = np.diag([c.att_sigma_tilt_rad**2, c.att_sigma_tilt_rad**2, s_yaw**2])
+        s_yaw = c.att_sigma_yaw_rad if fuse_yaw else 1e3  # 1e3 rad: no heading information
+        s_tilt2 = c.att_sigma_tilt_rad**2
+        if not self.ahrs_consistent:  # tilt error induced by the AHRS heading offset (see ahrs_check)
+            a_rms = math.sqrt(self._al_acc2 / self._al_w) if self._al_w > 0 else 0.0
+            s_tilt2 += (2.0 * math.sin(0.5 * abs(self.ahrs_heading_offset_rad)) * a_rms / 9.8) ** 2
+        R = np.diag([s_tilt2, s_tilt2, s_yaw**2])
         self._ins_apply(H, y, R, "attitude", ev.t_s)
 
     # ------------------------------------------------------------------ kinematic filter
@@ -637,6 +830,12 @@ class Navigator:
             vel = (ins.vn, ins.ve, ins.vd)
             rpy = ins.euler()
             P = self._kf.P
+            if c.hold_prior:
+                b = self._hold_blend(tg, (n, e, d), (P[0, 0], P[1, 1], P[2, 2]))
+                if b is not None:
+                    (n, e, d), pv = b
+                    P = P.copy()
+                    P[0, 0], P[1, 1], P[2, 2] = pv
         else:
             if self._kin is None:
                 return
