@@ -123,7 +123,30 @@ def _print_summary(source, pipeline, out: Path, stopped_by: str | None, elapsed_
 def _build_pipeline(recorder, args):
     from companion.pipeline import build_pipeline
 
-    return build_pipeline(recorder)
+    if getattr(args, "gravity_map", None) is None:
+        if getattr(args, "deny_gnss_after", None) is not None:
+            raise UsageError("--deny-gnss-after needs --gravity-map (the gravity-aided replay)")
+        return build_pipeline(recorder)
+    from companion.gravity_nav import GnssDenial, gravity_stages
+    from companion.matching.maps import LocalGravityMap, MapFormatError, load_grid
+
+    if args.deny_gnss_after is None:
+        raise UsageError("--gravity-map needs --deny-gnss-after SECONDS")
+    place = None
+    if args.gravity_place:
+        try:
+            place = tuple(float(v) for v in args.gravity_place.split(","))
+            if len(place) != 2:
+                raise ValueError
+        except ValueError:
+            raise UsageError(f"--gravity-place {args.gravity_place!r}: expected LAT,LON in degrees") from None
+    try:
+        lmap = LocalGravityMap.around(load_grid(args.gravity_map))
+        stages = gravity_stages(lmap, GnssDenial(args.deny_gnss_after), matcher=args.matcher, place_lat_lon=place,
+                                sigma_mgal=args.gravity_sigma_mgal, seed=args.gravity_seed)
+    except (MapFormatError, ValueError) as err:
+        raise UsageError(f"gravity map {args.gravity_map}: {err}") from None
+    return build_pipeline(recorder, navigate=False, extra_stages=stages)
 
 
 def cmd_replay(args) -> int:
@@ -138,8 +161,17 @@ def cmd_replay(args) -> int:
     out = Path(args.out) if args.out else _default_out(log.stem)
     out.parent.mkdir(parents=True, exist_ok=True)
     recorder = Recorder(out)
-    pipeline = _build_pipeline(recorder, args)
+    try:
+        pipeline = _build_pipeline(recorder, args)
+    except UsageError:
+        recorder.close()
+        out.unlink(missing_ok=True)
+        raise
     config = {"command": "replay", "log": str(log), "realtime_factor": args.realtime, "companion_version": __version__}
+    if args.gravity_map:
+        config.update(gravity_map=args.gravity_map, deny_gnss_after_s=args.deny_gnss_after, matcher=args.matcher,
+                      gravity_place=args.gravity_place or "map centre", gravity_sigma_mgal=args.gravity_sigma_mgal,
+                      gravity_seed=args.gravity_seed)
     bar = _progress_bar(source.progress()[1], f"replay {log.name}", args.quiet)
     t0 = wall_time_s()
     stopped_by = None
@@ -151,6 +183,10 @@ def cmd_replay(args) -> int:
         if not pipeline.stats.counts:
             out.unlink(missing_ok=True)  # an error before the first event leaves no empty record behind
     _print_summary(source, pipeline, out, stopped_by, wall_time_s() - t0)
+    if args.gravity_map:
+        for stage in pipeline.stages:
+            for line in getattr(stage, "summary_lines", list)():
+                print(line)
     if stopped_by:
         return EXIT_INTERRUPTED
     return EXIT_DAMAGED if _damaged(source) else EXIT_OK
@@ -243,6 +279,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="pace the replay at the vehicle's own rate (optionally FACTOR times faster); default: as fast as possible",
     )
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    g = r.add_argument_group("gravity-aided replay (GNSS denied, simulated gravimeter, GPS_INPUT in shadow mode)")
+    g.add_argument("--gravity-map", metavar="FILE", help="gravity anomaly grid (netCDF, mGal)")
+    g.add_argument("--deny-gnss-after", type=float, metavar="SECONDS",
+                   help="withhold GNSS from the navigator this long after the log's first event (kept as truth)")
+    g.add_argument("--gravity-place", metavar="LAT,LON", help="where the flight starts on the map (default: its centre)")
+    g.add_argument("--gravity-sigma-mgal", type=float, default=1.0, help="simulated gravimeter noise (default 1 mGal)")
+    g.add_argument("--gravity-seed", type=int, default=0, help="simulated gravimeter noise seed (default 0)")
+    g.add_argument("--matcher", choices=("viterbi", "knn", "iccp"), default="viterbi", help="gravity matcher (default viterbi)")
     r.set_defaults(func=cmd_replay)
 
     n = sub.add_parser("run", help="run on a live MAVLink link (the companion service)")

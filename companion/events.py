@@ -178,6 +178,20 @@ class GravitySample(Event):
     topic: ClassVar[str] = "/input/gravity"
 
 
+@dataclass(frozen=True, slots=True)
+class PositionFix(Event):
+    """A horizontal position measurement that is not GNSS (e.g. a gravity-matching fix), with its own
+    1-sigma north/east uncertainty. The Navigator fuses it with its own gate; it never feeds the GNSS
+    predictor. ``source`` names the producer ("gravity:viterbi", ...)."""
+
+    lat_deg: float
+    lon_deg: float
+    sigma_n_m: float
+    sigma_e_m: float
+    source: str = ""
+    topic: ClassVar[str] = "/input/position_fix"
+
+
 #: Every event type, for schema registration and tests.
 EVENT_TYPES: tuple[type[Event], ...] = (
     ImuSample,
@@ -188,4 +202,5 @@ EVENT_TYPES: tuple[type[Event], ...] = (
     StatusText,
     Heartbeat,
     GravitySample,
+    PositionFix,
 )

@@ -4,6 +4,13 @@ A stage is anything with ``process(event) -> list[outputs]`` and ``finish() -> l
 optionally ``metadata() -> dict[str, str]`` and ``summary_lines() -> list[str]``). Outputs are frozen
 dataclasses with ``t_s`` (and a ``topic``), recorded as they come. Later stages see earlier stages'
 outputs as well as the input events, so a predictor's points can feed the integrator.
+
+Feedback: an output of a later stage (index >= 1) whose type is in ``Pipeline.feedback_types`` (default
+:data:`FEEDBACK_TYPES`: PositionFix, e.g. a gravity-matching fix) is recorded when produced, is *not* passed to
+the stages after its producer in that pass, and is queued; once the current input event has gone through every
+stage, the queue is drained in order, each item running through all stages from stage 0 (the Navigator) like an
+input event (not recorded a second time, not counted in the input stats). Deterministic: the order depends only
+on the event stream. Feedback produced in ``finish()`` is recorded only (the Navigator has already finished).
 """
 
 from __future__ import annotations
@@ -11,13 +18,17 @@ from __future__ import annotations
 import asyncio
 import math
 import time
+from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from companion.events import Event, GnssFix, ImuSample
+from companion.events import Event, GnssFix, ImuSample, PositionFix
 from companion.sources.base import Source
 from companion.stats import StreamStats
+
+#: Stage outputs that go back to stage 0 as input events (see the module docstring).
+FEEDBACK_TYPES: tuple[type, ...] = (PositionFix,)
 
 #: Map-panel track of the raw receiver fixes.
 GNSS_MAP_TOPIC = "/map/gnss"
@@ -45,6 +56,9 @@ class Pipeline:
     sink: Sink | None = None
     stats: StreamStats = field(default_factory=StreamStats)
     outputs: int = 0
+    feedback_types: tuple[type, ...] = FEEDBACK_TYPES
+    _feedback: deque = field(default_factory=deque, repr=False)
+    _finishing: bool = field(default=False, repr=False)
 
     def process(self, ev: Event) -> None:
         self.stats.add(ev)
@@ -59,6 +73,8 @@ class Pipeline:
                 cov_enu_m2=_gnss_cov_enu_m2(ev),
             )
         self._run_stages([ev], 0)
+        while self._feedback:
+            self._run_stages([self._feedback.popleft()], 0)
 
     def _run_stages(self, items: Iterable[Any], first: int) -> None:
         for i in range(first, len(self.stages)):
@@ -68,6 +84,12 @@ class Pipeline:
             for out in produced:
                 self._emit(out)
             self.outputs += len(produced)
+            if produced and i > 0 and self.feedback_types:
+                fb = [o for o in produced if isinstance(o, self.feedback_types)]
+                if fb:
+                    if not self._finishing:
+                        self._feedback.extend(fb)
+                    produced = [o for o in produced if not isinstance(o, self.feedback_types)]
             items = list(items) + produced if produced else items
 
     def _emit(self, item: Any) -> None:
@@ -78,11 +100,14 @@ class Pipeline:
                 self.sink.write_location(track, item.t_s, item.lat_deg, item.lon_deg, item.alt_msl_m, cov_enu_m2=_cov_enu(item))
 
     def finish(self) -> None:
+        self._finishing = True
         for i, stage in enumerate(self.stages):
             outs = stage.finish()
             for out in outs:
                 self._emit(out)
             self.outputs += len(outs)
+            if i > 0 and self.feedback_types:
+                outs = [o for o in outs if not isinstance(o, self.feedback_types)]  # recorded only
             if outs:
                 self._run_stages(outs, i + 1)
 

@@ -55,10 +55,11 @@ from companion.estimation.outputs import (
     ModeChange,
     PredictorPoint,
 )
-from companion.events import Attitude, Event, GnssFix, ImuSample
+from companion.events import Attitude, Event, GnssFix, ImuSample, PositionFix
 from companion.geodesy import LocalFrame, radii_m
 
 CHI2_3DOF_999 = 16.266  # 99.9 % quantile of chi-square with 3 degrees of freedom
+CHI2_2DOF_999 = 13.816  # 99.9 % quantile of chi-square with 2 degrees of freedom
 
 
 @dataclass(frozen=True)
@@ -137,6 +138,7 @@ class NavigatorConfig:
     gate_chi2: float = CHI2_3DOF_999
     gate_reset_s: float = 5.0
     gnss_sigma_model: str = "short_term"  # "short_term" | "accuracy"
+    position_fix_gate_chi2: float = CHI2_2DOF_999  # own gate for PositionFix (horizontal, 2 dof); no reset
     short_term_sigma_h_m: float = 0.3
     short_term_sigma_v_m: float = 0.5
     uere_h_m: float = 1.5
@@ -282,6 +284,8 @@ class Navigator:
         elif isinstance(ev, GnssFix):
             if ev.has_position and ev.alt_msl_m is not None and ev.instance == self.config.gnss_instance:
                 self._on_fix(ev)
+        elif isinstance(ev, PositionFix):
+            self._on_position_fix(ev)
         elif isinstance(ev, Attitude):
             self._att = ev
             if self.config.ahrs_check:
@@ -420,6 +424,46 @@ class Navigator:
             self.predictor.add_fix(t, z, sh, sv, None if vel is None or not math.isfinite(vel[2]) else vel)
         if self._next_tick is None:
             self._next_tick = math.floor(t / self._tick_dt) + 1
+
+    def _on_position_fix(self, ev: PositionFix) -> None:
+        """A non-GNSS horizontal position measurement (e.g. a gravity-matching fix) at its own epoch.
+
+        Fused with its own sigmas and its own 2-dof gate (no reset on persistent rejection: a bad matcher
+        must not drag the solution); the GNSS predictor, the motion prior and the fix age are untouched."""
+        if self.frame is None or self.mode == "init":
+            return  # no frame / no filter yet: GNSS starts the navigator
+        sn, se = float(ev.sigma_n_m), float(ev.sigma_e_m)
+        if not (math.isfinite(ev.lat_deg) and math.isfinite(ev.lon_deg) and sn > 0 and se > 0
+                and math.isfinite(sn) and math.isfinite(se)):
+            return
+        t = ev.t_s
+        z = np.array(self._to_ned(ev.lat_deg, ev.lon_deg, self._ref[2])[:2])
+        R = np.diag([sn**2, se**2])
+        if self.mode == "ins":
+            self._ins_predict(max(t, self._kf_t))
+            H = np.zeros((2, 15))
+            H[:, 0:2] = np.eye(2)
+            y = z - self._ins_state_at(t, delay_s=0.0)[0][:2]
+            ok = self._ins_apply(H, y, R, "position_fix", t, gate_chi2=self.config.position_fix_gate_chi2)
+        else:
+            if self._kin is None:
+                return
+            self._kin_predict(max(t, self._kin_t))
+            kf = self._kin
+            H = np.zeros((2, 6))
+            H[:, 0:2] = np.eye(2)
+            y = z - kf.x.ravel()[0:2]
+            nis = float(y @ np.linalg.solve(H @ kf.P @ H.T + R, y))
+            ok = nis <= self.config.position_fix_gate_chi2
+            self._out.append(MeasurementUpdate(t, "position_fix", "kinematic", tuple(float(v) for v in y), (sn, se),
+                                               nis, self.config.position_fix_gate_chi2, ok))
+            if ok:
+                kf.update(z.reshape(-1, 1), R=R, H=H)
+        if ok:
+            self._used.add("position_fix")
+            self._last_innov = (float(y[0]), float(y[1]), math.nan)
+        else:
+            self._n_rejected += 1
 
     def _update_mode(self, t: float, ev: GnssFix, z, vel) -> None:
         c = self.config
@@ -610,14 +654,15 @@ class Navigator:
         self._kf_t = t
 
     def _ins_apply(self, H: np.ndarray, z: np.ndarray, R: np.ndarray, kind: str, t: float,
-                   R_gate: np.ndarray | None = None) -> bool:
+                   R_gate: np.ndarray | None = None, gate_chi2: float | None = None) -> bool:
         kf = self._kf
         S = H @ kf.P @ H.T + (R if R_gate is None else np.maximum(R, R_gate))
         nis = float(z @ np.linalg.solve(S, z))
-        ok = nis <= self.config.gate_chi2
+        gate = self.config.gate_chi2 if gate_chi2 is None else gate_chi2
+        ok = nis <= gate
         self._out.append(
             MeasurementUpdate(t, kind, "ins", tuple(float(x) for x in z), tuple(float(x) for x in np.sqrt(np.diag(R))),
-                              nis, self.config.gate_chi2, ok)
+                              nis, gate, ok)
         )
         if not ok:
             return False
@@ -638,14 +683,14 @@ class Navigator:
             h[5] += dv[1]
             h[6] += dv[2]
 
-    def _ins_state_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+    def _ins_state_at(self, t: float, delay_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """INS position (local NED) and velocity at the epoch ``t - gnss_delay_s`` a fix stamped t refers to.
 
         From the per-IMU-step history when the epoch is in the past, else extrapolated from the current
         state at constant velocity.
         """
         ins = self.ins
-        te = t - self.config.gnss_delay_s
+        te = t - (self.config.gnss_delay_s if delay_s is None else delay_s)
         hist = self._hist
         if hist and te < hist[-1][0]:
             if te <= hist[0][0]:
@@ -848,7 +893,7 @@ class Navigator:
             P = self._kin.P
         diag = tuple(float(v) for v in np.diag(P))
         lat, lon, alt = self._from_ned(n, e, d)
-        used = "+".join(sorted(self._used, key=("gnss", "predictor").index)) or "none"
+        used = "+".join(sorted(self._used, key=("gnss", "predictor", "position_fix").index)) or "none"
         self._out.append(
             FusedState(
                 tg, lat, lon, alt, n, e, d, *vel, *rpy, diag,

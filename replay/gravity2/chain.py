@@ -2,8 +2,8 @@
 
     GNSS withheld after `deny_gnss_after_s`  ->  Navigator (INS + KF, companion.estimation) keeps running on IMU
     -> its positions, laid on the map by a `Placement`, and a gravity reading go to a matcher (`Matcher.feed`)
-    -> each fix becomes a GnssFix (h_acc_m = matcher sigma; companion.matching.fusion.match_to_gnss_fix) fed back
-    to the Navigator  ->  the Navigator's FusedState stream is what the GPS_INPUT injector sends (shadow mode).
+    -> each fix becomes a PositionFix (sigma = matcher sigma, floored) fed back to the Navigator through the
+    pipeline's feedback path (companion.pipeline FEEDBACK_TYPES)  ->  the Navigator's FusedState stream is what the GPS_INPUT injector sends (shadow mode).
 
 Gravity readings come from a `SimulatedGravimeter` at the true position (the withheld GNSS fixes are the
 truth), or from any list of GravityReading events (a live or logged gravimeter). Pure: no asyncio, no clock.
@@ -20,13 +20,17 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.estimation.integrator import Navigator, NavigatorConfig
-from companion.estimation.outputs import FusedState
-from companion.events import Event, GnssFix
+from companion.estimation.integrator import NavigatorConfig
+from companion.estimation.outputs import FrameInfo, FusedState, MeasurementUpdate, ModeChange, PredictorPoint
+from companion.events import Event, GnssFix, PositionFix
 from companion.geodesy import LocalFrame
 from companion.matching.base import Matcher, MatchResult
 from companion.matching.maps import LocalGravityMap, load_grid
 from companion.sources.gravity import GravityReading, Placement, SimulatedGravimeter
+
+
+#: What the navigator emits (kept in ChainResult.outputs).
+_NAV_OUTPUTS = (FusedState, FrameInfo, MeasurementUpdate, ModeChange, PredictorPoint)
 
 
 @dataclass
@@ -56,90 +60,78 @@ def run_gravity_chain(events: list[Event], lmap: LocalGravityMap, placement: Pla
                       matcher: Matcher | None, gravimeter: SimulatedGravimeter | None = None,
                       readings: list[GravityReading] | None = None, gravity_period_s: float = 1.0,
                       nav_config: NavigatorConfig | None = None, sigma_floor_m: float = 1.0) -> ChainResult:
-    """Run the chain over time-ordered events. matcher=None gives the unaided (INS-only) reference.
+    """Run the chain over time-ordered events: a thin wrapper over the streaming stages of
+    companion.gravity_nav in a companion.pipeline.Pipeline (one implementation for CLI and benchmarks).
+    matcher=None gives the unaided (INS-only) reference.
 
-    Each fix goes to the Navigator with h_acc_m = max(matcher sigma, sigma_floor_m): a matcher's own spread
-    can be overconfident (cell quantisation, map ambiguity); the floor keeps one bad fix from dragging the
-    INS velocity."""
+    Each matcher fix reaches the Navigator as a PositionFix with sigma = max(matcher sigma, sigma_floor_m):
+    a matcher's own spread can be overconfident (cell quantisation, map ambiguity); the floor keeps one bad fix
+    from dragging the INS velocity."""
+    from companion.gravity_nav import (GnssDenial, GnssDeniedNavigator, GravityMatchStage, GravitySimStage,
+                                       gravity_nav_config)
+    from companion.pipeline import Pipeline
+
     if gravimeter is None and readings is None and matcher is not None:
         raise ValueError("need a gravimeter (simulated) or a list of gravity readings")
-    events = sorted(events, key=lambda e: e.t_s)
+    events = sorted(list(events) + list(readings or []), key=lambda e: e.t_s)
     fixes_in = [e for e in events if isinstance(e, GnssFix) and e.lat_deg is not None and e.lon_deg is not None]
     if not fixes_in:
         raise ValueError("the log has no GNSS positions (needed for the frame and as truth)")
-    t_start = events[0].t_s
-    t_deny = t_start + float(deny_gnss_after_s)
-    f0 = fixes_in[0]
-    frame = LocalFrame(f0.lat_deg, f0.lon_deg, f0.alt_msl_m or 0.0)
-    truth = [(e.t_s, *frame.to_ned_m(e.lat_deg, e.lon_deg, e.alt_msl_m or 0.0)[:2]) for e in fixes_in if e.t_s >= t_deny]
-    truth_a = np.asarray(truth, float).reshape(-1, 3)
-    read_q = sorted(readings, key=lambda r: r.t_s) if readings is not None else None
-    ri = 0
-    # Matcher fixes must be weighted by their own sigma (the 'short_term' GNSS model would use 0.3 m) and must not
-    # seed the KNN GNSS predictor (it would extrapolate fix-to-fix jumps as velocity).
-    nav = Navigator(nav_config or NavigatorConfig(gnss_sigma_model="accuracy", fuse_predictor=False))
+    t_deny = events[0].t_s + float(deny_gnss_after_s)
+    denial = GnssDenial(deny_gnss_after_s)
+    stages: list = [GnssDeniedNavigator(nav_config or gravity_nav_config(), denial)]
+    mstage = None
+    if matcher is not None:
+        if readings is None:
+            stages.append(GravitySimStage(gravimeter, denial, gravity_period_s))
+        mstage = GravityMatchStage(lmap, matcher, placement, sigma_floor_m=sigma_floor_m)
+        stages.append(mstage)
+    sink = _Collect()
+    pipe = Pipeline(stages=stages, sink=sink)
+    for ev in events:
+        pipe.process(ev)
+    pipe.finish()
+
+    frame = None
     res = ChainResult(np.empty(0), np.empty((0, 2)), np.empty((0, 2)))
-    ts, pos = [], []
-    next_g = t_deny
-    pending: list[GnssFix] = []
+    ts, pos, truth = [], [], []
+    for o in sink.items:
+        if isinstance(o, FrameInfo):
+            frame = LocalFrame(o.ref_lat_deg, o.ref_lon_deg, o.ref_alt_msl_m)
+        elif isinstance(o, GnssFix) and frame is not None and o.t_s >= t_deny and o.instance == 0 and o.has_position:
+            truth.append((o.t_s, *frame.to_ned_m(o.lat_deg, o.lon_deg, o.alt_msl_m or 0.0)[:2]))
+        elif isinstance(o, PositionFix):
+            res.n_fixes_sent += 1
+        if isinstance(o, _NAV_OUTPUTS):
+            res.outputs.append(o)
+            if isinstance(o, FusedState) and o.t_s >= t_deny and frame is not None:
+                ts.append(o.t_s)
+                pos.append(frame.to_ned_m(o.lat_deg, o.lon_deg, o.alt_msl_m)[:2])
+    truth_a = np.asarray(truth, float).reshape(-1, 3)
 
     def truth_at(t):
         if truth_a.shape[0] < 2 or t < truth_a[0, 0] or t > truth_a[-1, 0]:
             return np.array([np.nan, np.nan])
         return np.array([np.interp(t, truth_a[:, 0], truth_a[:, 1]), np.interp(t, truth_a[:, 0], truth_a[:, 2])])
 
-    def on_outputs(outs):
-        nonlocal next_g, ri
-        for o in outs:
-            res.outputs.append(o)
-            if not isinstance(o, FusedState) or o.t_s < t_deny:
-                continue
-            p_ne = frame.to_ned_m(o.lat_deg, o.lon_deg, o.alt_msl_m)[:2]
-            ts.append(o.t_s)
-            pos.append(p_ne)
-            if matcher is None or o.t_s + 1e-9 < next_g:
-                continue
-            next_g = o.t_s + gravity_period_s
-            if read_q is not None:
-                while ri < len(read_q) and read_q[ri].t_s < o.t_s - gravity_period_s / 2:
-                    ri += 1
-                if ri >= len(read_q) or abs(read_q[ri].t_s - o.t_s) > gravity_period_s / 2:
-                    continue
-                g = read_q[ri].gravity_mgal
-            else:
-                tr = truth_at(o.t_s)
-                if not np.all(np.isfinite(tr)):
-                    continue
-                r = gravimeter.read(o.t_s, tr)
-                if r is None:
-                    continue
-                g = r.gravity_mgal
-            vel_map = placement.to_map(np.array([o.vel_n_mps, o.vel_e_mps])) - placement.to_map(np.zeros(2))
-            m = matcher.feed(o.t_s, placement.to_map(p_ne), vel_map, g)
-            if m is None or not m.ok:
-                continue
-            res.fixes.append(m)
-            fix_ne = placement.to_flight(m.position_ne_m)
-            lat, lon, _ = frame.to_geodetic(np.array([fix_ne[0], fix_ne[1], 0.0]))
-            pending.append(GnssFix(t_s=float(m.t_s), fix_type=3, lat_deg=float(lat), lon_deg=float(lon),
-                                   alt_msl_m=float(o.alt_msl_m), vel_n_mps=None, vel_e_mps=None, vel_d_mps=None,
-                                   ground_speed_mps=None, course_deg=None, satellites=None, hdop=None, vdop=None,
-                                   h_acc_m=float(max(m.sigma_m, sigma_floor_m)), v_acc_m=None, speed_acc_mps=None,
-                                   gps_week=None, gps_tow_s=None))
-
-    for ev in events:
-        if isinstance(ev, GnssFix) and ev.t_s >= t_deny:
-            continue  # withheld: truth only
-        on_outputs(nav.process(ev))
-        while pending:
-            fx = pending.pop(0)
-            res.n_fixes_sent += 1
-            on_outputs(nav.process(fx))
-    on_outputs(nav.finish())
+    res.fixes = list(mstage.results) if mstage is not None else []
     res.t_s = np.asarray(ts, float)
     res.nav_ne_m = np.asarray(pos, float).reshape(-1, 2)
     res.truth_ne_m = np.array([truth_at(t) for t in res.t_s]).reshape(-1, 2)
     return res
+
+
+class _Collect:
+    """Pipeline sink keeping everything in memory."""
+
+    def __init__(self):
+        self.items: list = []
+
+    def write(self, item, topic=None):
+        self.items.append(item)
+
+    def write_location(self, *a, **k):
+        pass
 
 
 def gravity_replay(log_path: str | Path, map_path: str | Path, deny_gnss_after_s: float, *, matcher: str = "viterbi",
