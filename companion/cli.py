@@ -200,7 +200,7 @@ def cmd_run(args) -> int:
     """The live companion: settings from --config (TOML) with command-line overrides, then the runtime."""
     from companion.config import ConfigError, load_config, parse_override
     from companion.pipeline import wall_time_s
-    from companion.record import Recorder
+    from companion.record import Recorder, RotatingRecorder
     from companion.runtime import Runtime
 
     overrides = {
@@ -227,7 +227,11 @@ def cmd_run(args) -> int:
 
         out = out / datetime.datetime.now(datetime.timezone.utc).strftime("companion-%Y%m%dT%H%M%SZ.mcap")
     out.parent.mkdir(parents=True, exist_ok=True)
-    recorder = Recorder(out, flush_interval_s=config.record.flush_interval_s, fsync=config.record.fsync)
+    rec_kw = dict(flush_interval_s=config.record.flush_interval_s, fsync=config.record.fsync)
+    if config.record.segment_s > 0:
+        recorder = RotatingRecorder(out, segment_s=config.record.segment_s, **rec_kw)
+    else:
+        recorder = Recorder(out, **rec_kw)
     runtime = Runtime(config, recorder)
     meta = {"command": "run", "companion_version": __version__, **config.as_flat_dict()}
     t0 = wall_time_s()
@@ -238,7 +242,9 @@ def cmd_run(args) -> int:
         runtime.finalize_info()
         recorder.add_metadata("runtime", runtime.metadata())
         _finish_record(recorder, runtime, runtime.pipeline, meta, stopped_by)
-    _print_summary(runtime, runtime.pipeline, out, stopped_by, wall_time_s() - t0)
+    _print_summary(runtime, runtime.pipeline, recorder.path, stopped_by, wall_time_s() - t0)
+    for path in getattr(recorder, "paths", [])[:-1]:
+        print(f"record       {path} (earlier segment)")
     for line in runtime.summary_lines():
         print(line)
     # a service stopped on purpose (SIGTERM, --duration) exits cleanly

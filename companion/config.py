@@ -65,6 +65,10 @@ class RecordConfig:
     out: str = "out/live.mcap"  # MCAP file; a directory: a new companion-<UTC time>.mcap in it per run
     flush_interval_s: float = 1.0
     fsync: bool = False
+    # start a new file (NAME-000.mcap, NAME-001.mcap, ...) every this many seconds of vehicle time so a
+    # service that runs for hours keeps flat memory (an MCAP writer indexes every chunk until it closes);
+    # 0 writes one file (the default for interactive runs; the service's example config sets 900)
+    segment_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -193,6 +197,8 @@ def _validate(cfg: Config) -> Config:
         raise ConfigError("record.out must name a file or directory")
     if not cfg.record.flush_interval_s > 0:
         raise ConfigError("record.flush_interval_s must be > 0")
+    if not cfg.record.segment_s >= 0:
+        raise ConfigError("record.segment_s must be >= 0 (0: one file)")
     return cfg
 
 

@@ -46,6 +46,8 @@ def main() -> int:
     ap.add_argument("--warmup-s", type=float, default=60.0)
     ap.add_argument("--out", type=Path, default=None, help="write the markdown table here too")
     ap.add_argument("--workdir", type=Path, default=Path("out/latency"))
+    ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="passed on to `companion run --set` (e.g. record.segment_s=600)")
     args = ap.parse_args()
     from companion.record import summarize
 
@@ -62,7 +64,8 @@ def main() -> int:
     cmd, label = CLI, "companion run"
     mcap = args.workdir / "live.mcap"
     comp = subprocess.Popen(
-        [*cmd, "run", "--connect", f"tcp:127.0.0.1:{port}", "--inject", "inject", "--out", str(mcap)],
+        [*cmd, "run", "--connect", f"tcp:127.0.0.1:{port}", "--inject", "inject", "--out", str(mcap),
+         *[a for kv in args.set for a in ("--set", kv)]],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     samples = []

@@ -639,3 +639,30 @@ def test_close_from_signal_handler_during_write(tmp_path):
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, old)
+
+
+def test_rotating_recorder_segments_are_complete_and_carry_metadata(tmp_path):
+    from companion.events import Attitude
+    from companion.record import RotatingRecorder, iter_payloads, summarize
+
+    rec = RotatingRecorder(tmp_path / "live.mcap", segment_s=10.0)
+    rec.add_metadata("source", {"kind": "live"})
+    n = 0
+    for k in range(350):  # 35 s of message time at 10 Hz -> 4 segments
+        rec.write(Attitude(t_s=100.0 + k * 0.1, roll_rad=0.0, pitch_rad=0.0, yaw_rad=float(k)))
+        n += 1
+    rec.write_location("/map/x", 134.95, 1.0, 2.0, 3.0)
+    rec.add_metadata("summary", {"json": "{}"})
+    rec.close()
+    rec.close()  # idempotent
+    assert [p.name for p in rec.paths] == [f"live-{i:03d}.mcap" for i in range(4)]
+    total = 0
+    for i, p in enumerate(rec.paths):
+        s = summarize(p)
+        assert s.finalised and dict(s.metadata)["source"] == {"kind": "live"}
+        assert s.span_s < 10.0
+        total += s.topic("/input/attitude").count
+    assert total == n and rec.counts["/input/attitude"] == n and rec.counts["/map/x"] == 1
+    assert "summary" in dict(summarize(rec.paths[-1]).metadata)
+    yaws = [json.loads(b)["yaw_rad"] for p in rec.paths for _, _, b in iter_payloads(p, "/input/attitude")]
+    assert yaws == [float(k) for k in range(350)]  # nothing lost or duplicated across segments

@@ -2,6 +2,7 @@
 
 from companion.record.inspect import RecordError, Summary, TopicSummary, format_summary, iter_payloads, summarize
 from companion.record.recorder import Recorder
+from companion.record.rotating import RotatingRecorder
 from companion.record.schemas import LOCATION_FIX_SCHEMA, LOCATION_FIX_SCHEMA_NAME, dataclass_schema, schema_name
 
 __all__ = [
@@ -9,6 +10,7 @@ __all__ = [
     "LOCATION_FIX_SCHEMA_NAME",
     "RecordError",
     "Recorder",
+    "RotatingRecorder",
     "Summary",
     "TopicSummary",
     "dataclass_schema",
