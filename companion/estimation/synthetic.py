@@ -15,6 +15,7 @@ import numpy as np
 
 from companion.events import Attitude, Event, GnssFix, ImuSample
 from companion.geodesy import EARTH_RATE_RADPS, LocalFrame, normal_gravity_mps2, radii_m
+from companion.sim.trajectory import dcm_from_euler  # one ZYX Euler -> C_nb for simulator and tests
 
 REF = (47.4992, 19.1977, 150.0)  # the paper's airfield (Matyasfold), altitude MSL
 
@@ -60,22 +61,6 @@ def trajectory(t):
     return pos, vel, acc, np.stack([roll, pitch, yaw], -1), np.stack([droll, dpitch, dyaw], -1)
 
 
-def _dcm_bn(euler):
-    r, p, y = euler[..., 0], euler[..., 1], euler[..., 2]
-    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-    c = np.empty(euler.shape[:-1] + (3, 3))
-    c[..., 0, 0] = cp * cy
-    c[..., 0, 1] = sr * sp * cy - cr * sy
-    c[..., 0, 2] = cr * sp * cy + sr * sy
-    c[..., 1, 0] = cp * sy
-    c[..., 1, 1] = sr * sp * sy + cr * cy
-    c[..., 1, 2] = cr * sp * sy - sr * cy
-    c[..., 2, 0] = -sp
-    c[..., 2, 1] = sr * cp
-    c[..., 2, 2] = cr * cp
-    return c
-
-
 def exact_imu(t, frame: LocalFrame):
     """Exact specific force and angular rate in body FRD at times t."""
     pos, vel, acc, eul, deul = trajectory(t)
@@ -85,7 +70,7 @@ def exact_imu(t, frame: LocalFrame):
     w_ie = EARTH_RATE_RADPS * np.stack([np.cos(lat), np.zeros_like(lat), -np.sin(lat)], -1)
     w_en = np.stack([vel[:, 1] / (rn + h), -vel[:, 0] / (rm + h), -vel[:, 1] * np.tan(lat) / (rn + h)], -1)
     g = np.stack([np.zeros_like(lat), np.zeros_like(lat), normal_gravity_mps2(lat, h)], -1)
-    c_bn = _dcm_bn(eul)
+    c_bn = dcm_from_euler(eul)
     f_n = acc - g + np.cross(2 * w_ie + w_en, vel)
     f_b = np.einsum("nji,nj->ni", c_bn, f_n)
     r, p = eul[:, 0], eul[:, 1]
