@@ -32,6 +32,11 @@ def main() -> None:
         text = re.sub(r"^(#+) ", lambda m: "#" + m.group(1) + " ", text, flags=re.M)
         text = re.sub(r"\]\((?!https?:|replay/|/|#)([^)]+\.png)\)", r"](replay/results/\1)", text)
         parts.append(text.rstrip() + "\n")
+    pngs = sorted(RESULTS.glob("*.png"))
+    if pngs:
+        parts.append("## Plots\n")
+        parts += [f"- [{p.stem}](replay/results/{p.name})" for p in pngs]
+        parts.append("")
     (ROOT / "BENCHMARKS.md").write_text("\n".join(parts))
     print(f"BENCHMARKS.md: {len(files)} sections from {', '.join(p.name for p in files)}")
 
@@ -44,7 +49,7 @@ def _title(p: Path) -> str:
 
 
 def _anchor(title: str) -> str:
-    return re.sub(r"[^a-z0-9 -]", "", title.lower()).replace(" ", "-")
+    return re.sub(r"[^a-z0-9 _-]", "", title.lower()).replace(" ", "-")
 
 
 if __name__ == "__main__":

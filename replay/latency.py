@@ -92,6 +92,8 @@ def main() -> int:
         return 1
     wall = samples[-1][0]
     cpu_pct = 100.0 * (samples[-1][1] - samples[0][1]) / wall
+    if not mcap.exists():  # record.segment_s: the run's metadata is in the last segment
+        mcap = sorted(args.workdir.glob(f"{mcap.stem}-*.mcap"))[-1]
     summary = summarize(mcap)
     meta = summary.metadata_dict("runtime")
     sent = int(summary.metadata_dict("Injector")["sent"])
@@ -123,7 +125,8 @@ def main() -> int:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(
             "# Live companion: latency, CPU, memory\n\n"
-            f"Command: `nice -n 10 .venv/bin/python replay/latency.py --duration-s {args.duration_s:g} --out {args.out}`\n\n"
+            f"Command: `.venv/bin/python replay/latency.py --duration-s {args.duration_s:g} --warmup-s {args.warmup_s:g} "
+            f"--out {args.out}{''.join(' --set ' + kv for kv in args.set)}`\n\n"
             + text + "\n\nRSS samples (s, MiB): " + ", ".join(f"{s[0]:.0f}:{s[2]:.1f}" for s in samples[:: max(1, len(samples) // 20)]) + "\n"
         )
     return 0
