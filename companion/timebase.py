@@ -35,30 +35,47 @@ class VehicleClock:
     reboots: int = 0
     held_back: int = 0  # messages dropped while a backward jump was unconfirmed
     _candidate: list[float] = field(default_factory=list)
+    _candidate_recv_s: float | None = None  # receive time of the first message of the new epoch
+    _last_recv_s: float | None = None  # receive time of the newest message on the current epoch
 
-    def to_vehicle(self, boot_s: float, derived: bool = False) -> tuple[float | None, Reboot | None]:
-        """Vehicle time for a boot time (None: held back), and a Reboot event when one is confirmed."""
+    def to_vehicle(
+        self, boot_s: float, derived: bool = False, recv_s: float | None = None
+    ) -> tuple[float | None, Reboot | None]:
+        """Vehicle time for a boot time (None: held back), and a Reboot event when one is confirmed.
+
+        ``recv_s`` (a receive clock: tlog record time, live link monotonic time) lets a reboot keep the
+        downtime: the new epoch starts that much after the last message before it, so a vehicle that
+        kept moving while its autopilot restarted does not appear to jump in zero time.
+        """
         if self.max_boot_s is None:
             self.max_boot_s = boot_s
+            self._last_recv_s = recv_s
             return self.offset_s + boot_s, None
         if derived:
             return self.offset_s + max(boot_s, 0.0), None
         if boot_s < self.max_boot_s - self.reboot_jump_s:
             if self._candidate and boot_s < self._candidate[-1] - self.reboot_jump_s:
                 self._candidate.clear()  # not one new epoch either: start over
+            if not self._candidate:
+                self._candidate_recv_s = recv_s
             self._candidate.append(boot_s)
             if len(self._candidate) < self.confirm_messages:
                 self.held_back += 1
                 return None, None
             prev, first = self.max_boot_s, self._candidate[0]
-            self.offset_s += prev
+            downtime_s = 0.0
+            if self._candidate_recv_s is not None and self._last_recv_s is not None:
+                downtime_s = max(0.0, self._candidate_recv_s - self._last_recv_s - first)
+            self.offset_s += prev + downtime_s
             self.max_boot_s = max(self._candidate)
             self._candidate.clear()
             self.reboots += 1
             return self.offset_s + boot_s, Reboot(t_s=self.offset_s + first, previous_boot_s=prev, new_boot_s=first)
         self._candidate.clear()  # back on the current epoch: what jumped back was only late
-        if boot_s > self.max_boot_s:
+        if boot_s >= self.max_boot_s:
             self.max_boot_s = boot_s
+            if recv_s is not None:
+                self._last_recv_s = recv_s
         return self.offset_s + boot_s, None
 
 

@@ -100,3 +100,16 @@ def test_reorder_buffer_orders_within_horizon_and_is_stable():
     assert [e.t_s for e in out] == sorted(e.t_s for e in evs)
     assert out[1] is evs[2] and out[2] is evs[3]  # equal times keep arrival order
     assert buf.late == 0
+
+
+def test_reboot_keeps_the_downtime_when_receive_times_are_known():
+    c = VehicleClock()
+    for k in range(1000):
+        c.to_vehicle(200.0 + k * 0.1, recv_s=1000.0 + k * 0.1)  # last: boot 299.9 received at 1099.9
+    # the autopilot restarts; its first message (boot 0.5 s) is received 5 s after the last old one
+    assert c.to_vehicle(0.5, recv_s=1104.9)[0] is None
+    assert c.to_vehicle(0.52, recv_s=1104.92)[0] is None
+    t, rb = c.to_vehicle(0.54, recv_s=1104.94)
+    assert isinstance(rb, Reboot)
+    assert rb.t_s == pytest.approx(299.9 + 5.0)  # the 5 s the vehicle kept moving are not lost
+    assert t == pytest.approx(299.9 + 5.04)

@@ -75,7 +75,7 @@ class MavlinkDecoder:
             if self._last_boot_s is None:
                 return None
             boot_s = self._last_boot_s + max(0.0, recv_s - (self._last_boot_recv_s or recv_s))
-        t_s, reboot = self.clock.to_vehicle(boot_s, derived=derived)
+        t_s, reboot = self.clock.to_vehicle(boot_s, derived=derived, recv_s=recv_s)
         if reboot is not None:
             out.append(reboot)
         if t_s is None:
