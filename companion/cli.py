@@ -127,7 +127,7 @@ def _build_pipeline(recorder, args):
         if getattr(args, "deny_gnss_after", None) is not None:
             raise UsageError("--deny-gnss-after needs --gravity-map (the gravity-aided replay)")
         return build_pipeline(recorder)
-    from companion.gravity_nav import GnssDenial, gravity_stages
+    from companion.gravity_nav import FixAcceptance, GnssDenial, gravity_stages
     from companion.matching.maps import LocalGravityMap, MapFormatError, load_grid
 
     if args.deny_gnss_after is None:
@@ -143,7 +143,8 @@ def _build_pipeline(recorder, args):
     try:
         lmap = LocalGravityMap.around(load_grid(args.gravity_map))
         stages = gravity_stages(lmap, GnssDenial(args.deny_gnss_after), matcher=args.matcher, place_lat_lon=place,
-                                sigma_mgal=args.gravity_sigma_mgal, seed=args.gravity_seed)
+                                sigma_mgal=args.gravity_sigma_mgal, seed=args.gravity_seed,
+                                acceptance=None if args.gravity_accept_all else FixAcceptance())
     except (MapFormatError, ValueError) as err:
         raise UsageError(f"gravity map {args.gravity_map}: {err}") from None
     return build_pipeline(recorder, navigate=False, extra_stages=stages)
@@ -171,7 +172,7 @@ def cmd_replay(args) -> int:
     if args.gravity_map:
         config.update(gravity_map=args.gravity_map, deny_gnss_after_s=args.deny_gnss_after, matcher=args.matcher,
                       gravity_place=args.gravity_place or "map centre", gravity_sigma_mgal=args.gravity_sigma_mgal,
-                      gravity_seed=args.gravity_seed)
+                      gravity_seed=args.gravity_seed, gravity_accept_all=args.gravity_accept_all)
     bar = _progress_bar(source.progress()[1], f"replay {log.name}", args.quiet)
     t0 = wall_time_s()
     stopped_by = None
@@ -232,7 +233,12 @@ def cmd_run(args) -> int:
         recorder = RotatingRecorder(out, segment_s=config.record.segment_s, **rec_kw)
     else:
         recorder = Recorder(out, **rec_kw)
-    runtime = Runtime(config, recorder)
+    try:
+        runtime = Runtime(config, recorder)
+    except ValueError as err:  # the gravity map (MapFormatError is a ValueError)
+        recorder.close()
+        out.unlink(missing_ok=True)
+        raise UsageError(f"gravity.map {config.gravity.map}: {err}") from None
     meta = {"command": "run", "companion_version": __version__, **config.as_flat_dict()}
     t0 = wall_time_s()
     stopped_by = None
@@ -293,6 +299,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--gravity-sigma-mgal", type=float, default=1.0, help="simulated gravimeter noise (default 1 mGal)")
     g.add_argument("--gravity-seed", type=int, default=0, help="simulated gravimeter noise seed (default 0)")
     g.add_argument("--matcher", choices=("viterbi", "knn", "iccp"), default="viterbi", help="gravity matcher (default viterbi)")
+    g.add_argument("--gravity-accept-all", action="store_true",
+                   help="fuse every matcher fix; by default a fix is fused only if its window saw map signal over >= 2 "
+                        "map cells of track (companion.gravity_nav.FixAcceptance)")
     r.set_defaults(func=cmd_replay)
 
     n = sub.add_parser("run", help="run on a live MAVLink link (the companion service)")
@@ -312,10 +321,27 @@ def build_parser() -> argparse.ArgumentParser:
     v = sub.add_parser("sim", help="simulated ArduPilot vehicle on a MAVLink link, for hardware-in-the-loop tests")
     v.add_argument("--listen", default="tcpin:127.0.0.1:5760", help="tcpin:HOST:PORT (like SITL) or udpout:HOST:PORT")
     v.add_argument("--log", help="play this .tlog (default: a generated flight, the sample flight's profile)")
-    v.add_argument("--profile", choices=("sample", "circuit"), default="sample", help="generated flight: the sample flight, or 200 m circuits that can loop")
+    v.add_argument("--profile", choices=("sample", "circuit", "cruise"), default="sample",
+                   help="generated flight: the sample flight, 200 m circuits that can loop, or an hours-long lawn-mower survey cruise")
     v.add_argument("--loops", type=int, default=1, help="play the source this many times, boot time running on (0: until stopped)")
-    v.add_argument("--gnss-hz", type=_positive_float, default=10.0, help="generated flight: GNSS rate (default 10)")
-    v.add_argument("--imu-hz", type=_positive_float, default=50.0, help="generated flight: IMU rate (default 50)")
+    v.add_argument("--gnss-hz", type=_positive_float, default=None, help="generated flight: GNSS rate (default 10; cruise 5)")
+    v.add_argument("--imu-hz", type=_positive_float, default=None, help="generated flight: IMU rate (default 50; cruise 25)")
+    v.add_argument("--attitude-hz", type=_positive_float, default=10.0, help="generated flight: ATTITUDE rate (default 10)")
+    c = v.add_argument_group("cruise (--profile cruise): a lawn-mower survey from --origin, lines along --cruise-heading")
+    c.add_argument("--hours", type=_positive_float, default=3.0, help="flight duration in hours (default 3)")
+    c.add_argument("--cruise-speed", type=_positive_float, default=150.0,
+                   help="cruise speed m/s (default 150, an aircraft; below 30 the ship defaults apply: 0 m, 20 km lines 2 km apart)")
+    c.add_argument("--origin", metavar="LAT,LON", default=None, help="start (survey box corner) in degrees (default -40.5,155.6, Tasman Sea)")
+    c.add_argument("--line-km", type=_positive_float, default=None, help="survey line length km (default 300; ship 20)")
+    c.add_argument("--spacing-km", type=_positive_float, default=None, help="distance between lines km (default 25; ship 2)")
+    c.add_argument("--cruise-heading", type=float, default=0.0, help="direction of the first line, deg from north (default 0); later lines lie to its right")
+    c.add_argument("--cruise-alt", type=float, default=None, help="survey height above the origin m (default 300; ship 0)")
+    c.add_argument("--max-lines", type=int, default=None, help="turn back across the box after this many lines (default: keep adding lines)")
+    gr = v.add_argument_group("gravimeter: NAMED_VALUE_FLOAT readings of a gravity map at the true position (generated flights)")
+    gr.add_argument("--gravity-map", metavar="FILE", default=None, help="gravity anomaly grid (netCDF, mGal, lat/lon axes)")
+    gr.add_argument("--gravity-name", default="GRAV", help="NAMED_VALUE_FLOAT name (default GRAV, at most 10 characters)")
+    gr.add_argument("--gravity-sigma-mgal", type=float, default=1.0, help="gravimeter white noise (default 1 mGal; seeded by --seed)")
+    gr.add_argument("--gravity-hz", type=_positive_float, default=1.0, help="gravimeter reading rate (default 1 Hz)")
     v.add_argument("--seed", type=int, default=None, help="generated flight / noise seed")
     v.add_argument("--speed", type=_positive_float, default=1.0, help="playback speed (1 = real time)")
     v.add_argument("--start", type=float, default=0.0, help="start at this playback time (s)")

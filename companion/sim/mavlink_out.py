@@ -15,7 +15,12 @@ Streams (rates as an ArduCopter with SR_* set for a companion computer link):
 * RAW_IMU at the IMU rate (time_usec boot time; acc mG, gyro mrad/s, mag mGauss, id 0, temperature cdegC);
 * SCALED_IMU2 at the IMU rate (time_boot_ms; same units) when the flight has a second IMU;
 * ATTITUDE at the attitude rate (autopilot estimate, rad and rad/s);
-* STATUSTEXT at the flight's text times.
+* STATUSTEXT at the flight's text times;
+* NAMED_VALUE_FLOAT (name "GRAV" by default, value mGal, time_boot_ms) at the gravimeter's times when
+  readings are given: what an ArduPilot Lua script ``gcs:send_named_float("GRAV", v)`` sends, from (1, 1).
+
+``telemetry_messages(..., t_range=(t0, t1))`` builds only the messages sent in [t0, t1): a long flight is
+framed a chunk at a time instead of holding every message object at once.
 """
 
 from __future__ import annotations
@@ -41,7 +46,8 @@ UINT16_MAX = 65535
 _GUIDED_MODES = {3, 4, 6, 7, 9, 11, 21}
 
 #: sort order of messages with the same boot time (ArduPilot's stream order is not specified; ours is fixed)
-_ORDER = {"HEARTBEAT": 0, "SYSTEM_TIME": 1, "STATUSTEXT": 2, "RAW_IMU": 3, "SCALED_IMU2": 4, "ATTITUDE": 5, "GPS_RAW_INT": 6}
+_ORDER = {"HEARTBEAT": 0, "SYSTEM_TIME": 1, "STATUSTEXT": 2, "RAW_IMU": 3, "SCALED_IMU2": 4, "ATTITUDE": 5, "GPS_RAW_INT": 6,
+          "NAMED_VALUE_FLOAT": 7}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -161,6 +167,14 @@ def statustext(severity: int, text: str):
     return mavlink2.MAVLink_statustext_message(int(severity), raw, 0, 0)
 
 
+def named_value_float(boot_s: float, name: str, value: float):
+    """NAMED_VALUE_FLOAT as ``gcs:send_named_float(name, value)`` sends it (name at most 10 characters)."""
+    raw = name.encode("ascii")
+    if not 1 <= len(raw) <= 10:
+        raise ValueError(f"NAMED_VALUE_FLOAT names are 1-10 characters, got {name!r}")
+    return mavlink2.MAVLink_named_value_float_message(units.ms_from_s(boot_s), raw, float(value))
+
+
 # ---------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Outgoing:
@@ -172,35 +186,67 @@ class Outgoing:
     src_component: int = 1
 
 
-def telemetry_messages(flight, *, heartbeat_hz: float = 1.0, system_time_hz: float = 1.0, gcs: bool = True) -> list[Outgoing]:
-    """Every message of a simulated flight, ordered by send time (boot time)."""
+def _window(t_s, t_range) -> range:
+    """Indices of the (sorted) send times ``t_s`` whose microsecond time lies in ``t_range`` = [t0, t1)."""
+    t = np.asarray(t_s, dtype=float)
+    if t_range is None:
+        return range(len(t))
+    us = np.round(t * 1e6)
+    lo, hi = (np.round(v * 1e6) if math.isfinite(v) else v for v in t_range)
+    return range(int(np.searchsorted(us, lo, "left")), int(np.searchsorted(us, hi, "left")))
+
+
+def telemetry_messages(
+    flight,
+    *,
+    heartbeat_hz: float = 1.0,
+    system_time_hz: float = 1.0,
+    gcs: bool = True,
+    gravity: tuple[np.ndarray, np.ndarray] | None = None,
+    gravity_name: str = "GRAV",
+    t_range: tuple[float, float] | None = None,
+) -> list[Outgoing]:
+    """Every message of a simulated flight sent in ``t_range`` (default: all), ordered by send time (boot time).
+
+    ``gravity``: (boot times s, values mGal) of gravimeter readings, sent as NAMED_VALUE_FLOAT ``gravity_name``.
+    """
     out: list[Outgoing] = []
     end_s = flight.duration_s
     # 1 Hz streams; SYSTEM_TIME a few ms after the heartbeat as a scheduler would send it
     n_hb = int(math.floor(end_s * heartbeat_hz)) + 1
     t_hb = np.arange(n_hb) / heartbeat_hz
-    armed = flight.armed_at(t_hb)
-    modes = flight.custom_mode_at(t_hb)
-    for t, arm, mode in zip(t_hb, armed, modes):
-        out.append(Outgoing(units.us_from_s(t), heartbeat(bool(arm), mode)))
-        if gcs:
-            out.append(Outgoing(units.us_from_s(t + 0.5), gcs_heartbeat(), 255, 190))
+    sel = _window(t_hb, t_range)
+    if len(sel):
+        armed = flight.armed_at(t_hb[sel.start:sel.stop])
+        modes = flight.custom_mode_at(t_hb[sel.start:sel.stop])
+        for t, arm, mode in zip(t_hb[sel.start:sel.stop], armed, modes):
+            out.append(Outgoing(units.us_from_s(t), heartbeat(bool(arm), mode)))
+    if gcs:
+        for k in _window(t_hb + 0.5, t_range):
+            out.append(Outgoing(units.us_from_s(t_hb[k] + 0.5), gcs_heartbeat(), 255, 190))
     n_st = int(math.floor(end_s * system_time_hz)) + 1
-    for t in np.arange(n_st) / system_time_hz + 0.005:
-        out.append(Outgoing(units.us_from_s(t), system_time(t, flight.config.boot_epoch_us)))
-    for t, sev, text in flight.statustexts:
+    t_st = np.arange(n_st) / system_time_hz + 0.005
+    for k in _window(t_st, t_range):
+        out.append(Outgoing(units.us_from_s(t_st[k]), system_time(t_st[k], flight.config.boot_epoch_us)))
+    texts = sorted(flight.statustexts, key=lambda x: x[0])
+    for k in _window([x[0] for x in texts], t_range):
+        t, sev, text = texts[k]
         out.append(Outgoing(units.us_from_s(t), statustext(sev, text)))
     imu = flight.imu
-    for k, t in enumerate(imu.t_s):
+    for k in _window(imu.t_s, t_range):
+        t = imu.t_s[k]
         out.append(Outgoing(units.us_from_s(t), raw_imu(t, imu.accel_frd_mps2[k], imu.gyro_frd_radps[k], imu.mag_frd_mgauss[k], imu.temperature_c)))
     if flight.imu2 is not None:
         i2 = flight.imu2
-        for k, t in enumerate(i2.t_s):
+        for k in _window(i2.t_s, t_range):
+            t = i2.t_s[k]
             out.append(Outgoing(units.us_from_s(t), scaled_imu2(t, i2.accel_frd_mps2[k], i2.gyro_frd_radps[k], i2.mag_frd_mgauss[k], i2.temperature_c)))
-    for k, t in enumerate(flight.truth_attitude.t_s):
-        out.append(Outgoing(units.us_from_s(t), attitude(t, flight.attitude_euler_rad[k], flight.attitude_rates_radps[k])))
+    ta = flight.truth_attitude.t_s
+    for k in _window(ta, t_range):
+        out.append(Outgoing(units.us_from_s(ta[k]), attitude(ta[k], flight.attitude_euler_rad[k], flight.attitude_rates_radps[k])))
     g = flight.gnss
-    for k, t in enumerate(g.t_s):
+    for k in _window(g.t_s, t_range):
+        t = g.t_s[k]
         out.append(
             Outgoing(
                 units.us_from_s(t),
@@ -212,6 +258,10 @@ def telemetry_messages(flight, *, heartbeat_hz: float = 1.0, system_time_hz: flo
                 ),
             )
         )
+    if gravity is not None:
+        tg, vg = gravity
+        for k in _window(tg, t_range):
+            out.append(Outgoing(units.us_from_s(tg[k]), named_value_float(float(tg[k]), gravity_name, float(vg[k]))))
     out.sort(key=lambda o: (o.boot_us, _ORDER.get(o.msg.get_type(), 9)))  # stable: ties keep insertion order
     return out
 

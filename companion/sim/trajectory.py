@@ -259,8 +259,8 @@ def wrap_pi(a):
 class FlightProfile:
     """A trajectory defined by legs flown one after another from rest at ``start_ned_m``.
 
-    ``sample(t_s)`` evaluates it at any times (position from a pre-integrated 2 kHz grid, everything
-    else analytic); ``sample_rate(rate_hz)`` samples it uniformly from 0 to ``duration_s``.
+    ``sample(t_s)`` evaluates it at any times (position from a pre-integrated grid, 2 kHz unless
+    ``internal_rate_hz`` says otherwise; everything else analytic); ``sample_rate(rate_hz)`` samples it uniformly from 0 to ``duration_s``.
     """
 
     def __init__(
@@ -270,7 +270,13 @@ class FlightProfile:
         *,
         start_ned_m: Sequence[float] = (0.0, 0.0, 0.0),
         start_heading_deg: float = 0.0,
+        internal_rate_hz: float = _INTERNAL_RATE_HZ,
     ) -> None:
+        if not internal_rate_hz > 0.0:
+            raise ValueError("internal_rate_hz must be positive")
+        #: rate of the horizontal-position pre-integration grid; the Hermite rule is 4th order, so smooth
+        #: long flights (hours of cruise) keep sub-millimetre accuracy at 20-50 Hz with 1/100 of the memory
+        self.internal_rate_hz = float(internal_rate_hz)
         self.frame = frame
         self.legs = list(legs)
         self.start_ned_m = np.asarray(start_ned_m, dtype=float)
@@ -359,8 +365,8 @@ class FlightProfile:
         return vel, acc, jerk, psi, w, ivd
 
     def _integrate(self) -> None:
-        n = int(math.ceil(self.duration_s * _INTERNAL_RATE_HZ)) + 1
-        self._grid_dt = 1.0 / _INTERNAL_RATE_HZ
+        n = int(math.ceil(self.duration_s * self.internal_rate_hz)) + 1
+        self._grid_dt = 1.0 / self.internal_rate_hz
         tg = np.arange(n) * self._grid_dt
         vel, acc, _, _, _, _ = self._kinematics(tg)
         h = self._grid_dt

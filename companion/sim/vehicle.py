@@ -13,6 +13,10 @@ RAW_IMU / SCALED_IMU2, ATTITUDE, STATUSTEXT -- and behaves like one towards the 
   and ``noise``: garbage bytes, frames with a bad CRC, another system's GPS, NaN attitude, fix_type 0 at
   0,0, a 3D fix at latitude 95 deg, duplicated and out-of-order IMU samples;
 * as TCP server (``tcpin``, like SITL) it starts its clock when the first client connects;
+* a gravimeter (``gravity=`` of :func:`playback_from_flight`): NAMED_VALUE_FLOAT "GRAV" from (1, 1) with the
+  map's anomaly at the true position plus seeded noise, always sent (like HEARTBEAT), silent with the link;
+* a long generated flight (hours of cruise, :mod:`companion.sim.cruise`) is framed a chunk of playback time
+  at a time (:class:`LazyItems`), so its hundreds of thousands of message objects never all exist at once;
 * every GPS_INPUT received is written to a JSON-lines record with the truth at the message's time and
   the horizontal error (truth: the flight's trajectory, or the log's own receiver positions).
 
@@ -31,7 +35,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
@@ -43,7 +47,7 @@ from companion.inject.gps_input import decode_gps_input
 _EPOCH_US = 1e15
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 #: streams an ArduPilot sends whatever was requested
-_ALWAYS = ("HEARTBEAT", "STATUSTEXT")
+_ALWAYS = ("HEARTBEAT", "STATUSTEXT", "NAMED_VALUE_FLOAT")
 _STREAMED = ("SYSTEM_TIME", "GPS_RAW_INT", "GPS2_RAW", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "ATTITUDE")
 
 
@@ -65,16 +69,50 @@ class Item:
             self.unix_us = int(m.time_unix_usec)
 
 
+class LazyItems:
+    """Items built a chunk of playback time at a time: ``build(t0, t1)`` returns the items with t0 <= play_s < t1,
+    in order. Iterating holds one chunk; ``end_s`` is the last item's time."""
+
+    def __init__(self, build: Callable[[float, float], list[Item]], end_s: float, chunk_s: float = 30.0) -> None:
+        if chunk_s <= 0:
+            raise ValueError("chunk_s must be positive")
+        self.build, self.end_s, self.chunk_s = build, float(end_s), float(chunk_s)
+
+    def window(self, start_s: float, end_s: float) -> Iterator[Item]:
+        """Items with start_s <= play_s <= end_s, in order."""
+        k = max(0, int(math.floor(start_s / self.chunk_s)))
+        last = min(end_s, self.end_s)
+        while k * self.chunk_s <= last:
+            t1 = (k + 1) * self.chunk_s
+            for it in self.build(k * self.chunk_s, t1 if t1 <= self.end_s else math.inf):
+                if it.play_s > end_s:
+                    return
+                if it.play_s >= start_s:
+                    yield it
+            k += 1
+
+    def __iter__(self) -> Iterator[Item]:
+        return self.window(0.0, math.inf)
+
+
+def _window(items, start_s: float, end_s: float) -> Iterator[Item]:
+    if isinstance(items, LazyItems):
+        return items.window(start_s, end_s)
+    return (it for it in items if start_s <= it.play_s <= end_s)
+
+
 @dataclass
 class Playback:
-    """Messages on the playback clock and the truth position as a function of it."""
+    """Messages on the playback clock (a list, or :class:`LazyItems`) and the truth position as a function of it."""
 
-    items: list[Item]
+    items: Sequence[Item] | LazyItems
     truth: Callable[[float], tuple[float, float, float] | None]  # play_s -> (lat, lon, alt_msl) or None
     description: str
 
     @property
     def duration_s(self) -> float:
+        if isinstance(self.items, LazyItems):
+            return self.items.end_s
         return self.items[-1].play_s if self.items else 0.0
 
 
@@ -85,13 +123,58 @@ def _v2(msg):
     return cls(*[v.encode("latin-1", "replace") if isinstance(v, str) else v for v in vals])
 
 
-def playback_from_flight(flight=None) -> Playback:
-    """A generated flight (default: the project's sample flight); truth from its trajectory."""
+def gravity_readings(profile, lmap, *, hz: float = 1.0, sigma_mgal: float = 1.0, seed: int = 0,
+                     offset_s: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+    """Simulated gravimeter readings along a generated flight: (boot times s, anomaly mGal) every 1/hz from
+    ``offset_s``, the map value at the true position plus Gaussian noise (seeded); readings off the map are left out.
+
+    The truth lat/lon is mapped onto the map with the map's own frame (an identity Placement): the flight is
+    where its profile says it is on the Earth.
+    """
+    from companion.sources.gravity import Placement, SimulatedGravimeter
+
+    if not hz > 0:
+        raise ValueError("gravity rate must be positive")
+    if lmap.frame is None:
+        raise ValueError("the gravity map must be geographic (lat/lon axes) to fly a generated flight over it")
+    n = int(math.floor((profile.duration_s - offset_s) * hz + 1e-9)) + 1
+    t = offset_s + np.arange(max(n, 0)) / hz
+    tr = profile.sample(t)
+    ne = lmap.frame.to_ned_m(tr.lat_deg, tr.lon_deg, 0.0)[:, :2]
+    grav = SimulatedGravimeter(lmap, Placement(), np.random.default_rng(seed), sigma_mgal=sigma_mgal)
+    keep_t, keep_v = [], []
+    for tk, p in zip(t, ne):
+        r = grav.read(float(tk), p)
+        if r is not None:
+            keep_t.append(float(tk))
+            keep_v.append(r.gravity_mgal)
+    return np.asarray(keep_t), np.asarray(keep_v)
+
+
+def playback_from_flight(flight=None, *, gravity: tuple[np.ndarray, np.ndarray] | None = None,
+                         gravity_name: str = "GRAV", lazy: bool | None = None, chunk_s: float = 30.0) -> Playback:
+    """A generated flight (default: the project's sample flight); truth from its trajectory.
+
+    ``gravity``: (boot times, mGal) from :func:`gravity_readings`, sent as NAMED_VALUE_FLOAT ``gravity_name``.
+    ``lazy`` (default: flights over 10 minutes) frames the messages ``chunk_s`` of playback time at a time.
+    """
     from companion.sim.flight import sample_flight
     from companion.sim.mavlink_out import telemetry_messages
 
     flight = flight or sample_flight()
-    items = [Item(o.boot_us * 1e-6, o.msg, (o.src_system, o.src_component)) for o in telemetry_messages(flight, gcs=True)]
+
+    def build(t0: float, t1: float) -> list[Item]:
+        msgs = telemetry_messages(flight, gcs=True, gravity=gravity, gravity_name=gravity_name,
+                                  t_range=None if (t0, t1) == (-math.inf, math.inf) else (t0, t1))
+        return [Item(o.boot_us * 1e-6, o.msg, (o.src_system, o.src_component)) for o in msgs]
+
+    if lazy is None:
+        lazy = flight.duration_s > 600.0
+    if lazy:
+        last = build(max(0.0, flight.duration_s - 2.0), math.inf)  # the last message's time (GCS heartbeat, ...)
+        items: Sequence[Item] | LazyItems = LazyItems(build, last[-1].play_s if last else 0.0, chunk_s)
+    else:
+        items = build(-math.inf, math.inf)
     profile = flight.profile
 
     def truth(t: float):
@@ -401,7 +484,11 @@ class VehicleSim:
         f = self.faults
         self._open()
         self._log({"event": "start", "description": self.playback.description, "start_s": self.start_s, "speed": self.speed})
-        items = [it for it in self.playback.items if self.start_s <= it.play_s <= self.end_s]
+        def window() -> Iterator[Item]:
+            return _window(self.playback.items, self.start_s, self.end_s)
+
+        src = window()
+        pending = next(src, None)
         if self.scheme == "tcpin":
             # like ArduPilot SITL on 5760: the vehicle's clock starts once something connects
             while self._conn is None and not self._stop:
@@ -413,13 +500,17 @@ class VehicleSim:
 
         next_noise = self.start_s + 1.0
         dropped = rebooting = gnss_logged = forgot = False
-        i = k = 0
+        k = 0
         try:
             while not self._stop:
-                if i >= len(items):
+                if pending is None:
                     if self.loops and k + 1 >= self.loops:
                         break
-                    i, k = 0, k + 1
+                    k += 1
+                    src = window()
+                    pending = next(src, None)
+                    if pending is None:
+                        break  # nothing to play
                     self._log({"event": "loop", "play_s": play_now(), "loop": k})
                 loop_offset = k * self.period_s
                 now = play_now()
@@ -451,10 +542,10 @@ class VehicleSim:
                     gnss_logged = True
                     self._log({"event": "gnss_off", "play_s": now})
                 silent = dropped or rebooting
-                while i < len(items) and items[i].play_s + loop_offset <= now:
-                    it = items[i]
+                while pending is not None and pending.play_s + loop_offset <= now:
+                    it = pending
                     t = it.play_s + loop_offset
-                    i += 1
+                    pending = next(src, None)
                     if silent:
                         continue
                     mtype = it.msg.get_type()
@@ -475,7 +566,7 @@ class VehicleSim:
                 if f.noise and not silent and now >= next_noise and self.boot_play != (0.0, 0.0):
                     self._noise(now)
                     next_noise = now + 1.0
-                nxt = items[i].play_s + loop_offset if i < len(items) else now
+                nxt = pending.play_s + loop_offset if pending is not None else now
                 self._poll(min(0.005, max(0.0, (nxt - play_now()) / self.speed)), now, silent)
         finally:
             self._log({"event": "end", "play_s": play_now(), "gps_input": self.stats.gps_input,
@@ -512,21 +603,88 @@ def circuit_profile(circuits: int = 2):
     return FlightProfile(legs, CANBERRA_FIELD, start_heading_deg=0.0)
 
 
+def _lat_lon(text: str, what: str) -> tuple[float, float]:
+    try:
+        lat, lon = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"{what} {text!r}: expected LAT,LON in degrees") from None
+    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 360.0):
+        raise ValueError(f"{what} {text!r}: latitude must be within +-90 deg and longitude within -180..360 deg")
+    return lat, lon
+
+
+def _cruise_from_args(args):
+    """``--profile cruise``: a lawn-mower survey (aircraft defaults at >= 30 m/s, ship defaults below)."""
+    from companion.sim.cruise import AIRCRAFT, SHIP, cruise_profile
+
+    speed = args.cruise_speed
+    preset = AIRCRAFT if speed >= 30.0 else SHIP
+    lat, lon = _lat_lon(args.origin, "--origin") if args.origin else (-40.5, 155.6)
+    return cruise_profile(
+        LocalFrame(lat, lon, 0.0), hours=args.hours, speed_mps=speed,
+        line_km=args.line_km if args.line_km is not None else preset["line_km"],
+        spacing_km=args.spacing_km if args.spacing_km is not None else preset["spacing_km"],
+        heading_deg=args.cruise_heading,
+        altitude_m=args.cruise_alt if args.cruise_alt is not None else preset["altitude_m"],
+        max_lines=args.max_lines,
+    )
+
+
+def _gravity_from_args(args, profile) -> tuple[np.ndarray, np.ndarray]:
+    """``--gravity-map``: readings along the flight; one-line errors for a bad file or a flight off the map."""
+    from companion.matching.maps import LocalGravityMap, MapFormatError, load_grid
+
+    if not 1 <= len(args.gravity_name.encode("ascii", "replace")) <= 10:
+        raise ValueError(f"--gravity-name {args.gravity_name!r}: NAMED_VALUE_FLOAT names are 1-10 characters")
+    try:
+        lmap = LocalGravityMap.around(load_grid(args.gravity_map))
+    except (MapFormatError, OSError, ValueError, KeyError) as err:
+        raise ValueError(f"gravity map {args.gravity_map}: {err}") from None
+    if lmap.frame is None:
+        raise ValueError(f"gravity map {args.gravity_map}: needs lat/lon axes to fly a generated flight over it")
+    f = profile.frame
+    n0, e0 = lmap.frame.to_ned_m(f.ref_lat_deg, f.ref_lon_deg, 0.0)[:2]
+    if not math.isfinite(float(lmap.interp_ne(n0, e0))):
+        raise ValueError(f"the flight starts at {f.ref_lat_deg:.4f},{f.ref_lon_deg:.4f}, off the gravity map "
+                         f"{args.gravity_map} (lon {lmap.gmap.x[0]:g}..{lmap.gmap.x[-1]:g}, lat {lmap.gmap.y[0]:g}..{lmap.gmap.y[-1]:g})")
+    hz = args.gravity_hz
+    seed = args.seed if args.seed is not None else 0
+    t, v = gravity_readings(profile, lmap, hz=hz, sigma_mgal=args.gravity_sigma_mgal, seed=seed)
+    expected = int(math.floor((profile.duration_s - 0.05) * hz + 1e-9)) + 1
+    off = expected - len(t)
+    print(f"sim: gravimeter {len(t)} readings at {hz:g} Hz as NAMED_VALUE_FLOAT {args.gravity_name!r} "
+          f"(sigma {args.gravity_sigma_mgal:g} mGal, map {Path(args.gravity_map).name})"
+          + (f"; {off} positions off the map send nothing" if off else ""), flush=True)
+    return t, v
+
+
 def run_sim(args) -> int:
     """``companion sim`` entry point (argparse namespace from companion.cli)."""
     from companion.config import load_signing_key
 
     if args.log:
+        if getattr(args, "gravity_map", None):
+            raise ValueError("--gravity-map works with a generated flight (--profile), not with --log")
         playback = playback_from_tlog(args.log)
     else:
         from companion.sim.flight import SAMPLE_SEED, SimConfig, sample_profile, simulate_flight
 
-        profile = circuit_profile() if args.profile == "circuit" else sample_profile()
+        cruise = args.profile == "cruise"
+        if cruise:
+            profile = _cruise_from_args(args)
+        else:
+            profile = circuit_profile() if args.profile == "circuit" else sample_profile()
+        gravity = _gravity_from_args(args, profile) if getattr(args, "gravity_map", None) else None
+        imu_hz = args.imu_hz or (25.0 if cruise else 50.0)
+        gnss_hz = args.gnss_hz or (5.0 if cruise else 10.0)
+        t0 = time.perf_counter()
         flight = simulate_flight(
             profile, args.seed if args.seed is not None else SAMPLE_SEED,
-            SimConfig(gnss_rate_hz=args.gnss_hz, imu_rate_hz=args.imu_hz, attitude_rate_hz=10.0),
+            SimConfig(gnss_rate_hz=gnss_hz, imu_rate_hz=imu_hz, attitude_rate_hz=getattr(args, "attitude_hz", 10.0)),
         )
-        playback = playback_from_flight(flight)
+        playback = playback_from_flight(flight, gravity=gravity, gravity_name=getattr(args, "gravity_name", "GRAV"))
+        print(f"sim: built {profile.duration_s / 3600:.2f} h flight in {time.perf_counter() - t0:.1f} s "
+              f"(IMU {imu_hz:g} Hz, GNSS {gnss_hz:g} Hz, attitude {getattr(args, 'attitude_hz', 10.0):g} Hz)", flush=True)
     faults = Faults(
         gnss_off=tuple(args.gnss_off) if args.gnss_off else None,
         imu_off=tuple(args.imu_off) if args.imu_off else None,
