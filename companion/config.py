@@ -72,23 +72,40 @@ class RecordConfig:
 
 
 @dataclass(frozen=True)
+class GravityConfig:
+    """Gravity-aided navigation on a live vehicle (companion.gravity_nav): gravimeter readings arrive as MAVLink
+    NAMED_VALUE_FLOAT(name, value in mGal, time_boot_ms) from the autopilot's system -- an autopilot Lua script's
+    gcs:send_named_float or a gravimeter component -- and are matched against ``map``; the fixes go into the
+    navigator as position measurements. Off while ``map`` is empty."""
+
+    map: str = ""  # gravity anomaly grid (netCDF, mGal) covering the area flown
+    matcher: str = "viterbi"  # viterbi | knn | iccp
+    named_value: str = "GRAV"  # NAMED_VALUE_FLOAT.name of the readings (1-10 characters)
+    sigma_mgal: float = 1.0  # gravimeter noise per reading (matcher likelihood, acceptance test)
+    feed_spacing_m: float = 0.0  # average readings over this much track per matcher sample; 0: one map cell
+    accept_min_track_cells: float = 2.0  # fix acceptance: matcher window >= this many map cells of track
+    accept_min_signal_ratio: float = 1.0  # ... and map signal along it >= this x sigma_mgal; 0 and 0: accept all
+
+
+@dataclass(frozen=True)
 class Config:
     link: LinkConfig = field(default_factory=LinkConfig)
     streams: StreamConfig = field(default_factory=StreamConfig)
     inject: InjectConfig = field(default_factory=InjectConfig)
     record: RecordConfig = field(default_factory=RecordConfig)
+    gravity: GravityConfig = field(default_factory=GravityConfig)
     duration_s: float = 0.0  # stop after this long (0: run until SIGTERM/SIGINT)
 
     def as_flat_dict(self) -> dict[str, str]:
         """section.key -> value text, for the MCAP ``config`` metadata."""
         out: dict[str, str] = {"duration_s": str(self.duration_s)}
-        for sec in ("link", "streams", "inject", "record"):
+        for sec in ("link", "streams", "inject", "record", "gravity"):
             for k, v in dataclasses.asdict(getattr(self, sec)).items():
                 out[f"{sec}.{k}"] = str(v)
         return out
 
 
-_SECTIONS = {"link": LinkConfig, "inject": InjectConfig, "record": RecordConfig}
+_SECTIONS = {"link": LinkConfig, "inject": InjectConfig, "record": RecordConfig, "gravity": GravityConfig}
 
 
 def _coerce(where: str, value: Any, default: Any) -> Any:
@@ -199,7 +216,26 @@ def _validate(cfg: Config) -> Config:
         raise ConfigError("record.flush_interval_s must be > 0")
     if not cfg.record.segment_s >= 0:
         raise ConfigError("record.segment_s must be >= 0 (0: one file)")
+    _validate_gravity(cfg.gravity)
     return cfg
+
+
+def _validate_gravity(g: GravityConfig) -> None:
+    from companion.gravity_nav import MATCHERS
+
+    if not g.map:
+        return
+    if not Path(g.map).is_file():
+        raise ConfigError(f"gravity.map: {g.map} is not a file")
+    if g.matcher not in MATCHERS:
+        raise ConfigError(f"gravity.matcher must be one of {', '.join(MATCHERS)}, got {g.matcher!r}")
+    if not 1 <= len(g.named_value) <= 10:
+        raise ConfigError("gravity.named_value must be 1-10 characters (NAMED_VALUE_FLOAT.name)")
+    if not g.sigma_mgal > 0:
+        raise ConfigError(f"gravity.sigma_mgal must be > 0, got {g.sigma_mgal:g}")
+    for k in ("feed_spacing_m", "accept_min_track_cells", "accept_min_signal_ratio"):
+        if not getattr(g, k) >= 0:
+            raise ConfigError(f"gravity.{k} must be >= 0, got {getattr(g, k):g}")
 
 
 def load_signing_key(path: str) -> bytes:
@@ -246,9 +282,10 @@ def load_config(path: str | os.PathLike | None = None, overrides: dict[str, Any]
         if not isinstance(target, dict):
             raise ConfigError(f"[{sec}] must be a table")
         target[k] = value
-    unknown = set(data) - {"link", "streams", "inject", "record", "duration_s"}
+    unknown = set(data) - {"link", "streams", "inject", "record", "gravity", "duration_s"}
     if unknown:
-        raise ConfigError(f"unknown setting(s) {', '.join(sorted(unknown))} (sections: link, streams, inject, record)")
+        raise ConfigError(f"unknown setting(s) {', '.join(sorted(unknown))} (sections: link, streams, inject, record, "
+                          "gravity)")
     kw: dict[str, Any] = {}
     for name, cls in _SECTIONS.items():
         if name in data:

@@ -54,16 +54,33 @@ def test_feedback_reaches_stage0_once_in_order_and_is_recorded_once():
     assert all(not isinstance(x, PositionFix) or x.t_s < 99 for x in s0.seen)  # finish(): recorded only
 
 
-def _replay(tmp_path, name):
+def _replay(tmp_path, name, *extra):
     out = tmp_path / f"{name}.mcap"
     res = subprocess.run([sys.executable, "-m", "companion.cli", "replay", str(SAMPLE_LOG), "--out", str(out), "--quiet",
                           "--gravity-map", str(require(AK_MAP)), "--deny-gnss-after", "60", "--gravity-place",
-                          "56.0,-144.0", "--gravity-sigma-mgal", "1.0"], capture_output=True, text=True, timeout=300)
+                          "56.0,-144.0", "--gravity-sigma-mgal", "1.0", *extra], capture_output=True, text=True,
+                         timeout=300)
     return res, out
 
 
+def test_cli_gravity_replay_rejects_fixes_of_a_short_drone_track(tmp_path):
+    """The sample drone flies 200 m circuits: on a 2' (~2-3.7 km) map its windows see no signal, so every fix is
+    recorded as a rejected match and none reaches the navigator (fix acceptance on by default)."""
+    import json
+
+    res, out = _replay(tmp_path, "r")
+    assert res.returncode == 0, res.stderr
+    topics = {t.topic: t.count for t in summarize(out).topics}
+    assert topics.get("/input/position_fix", 0) == 0
+    matches = [json.loads(p) for _t, _ns, p in iter_payloads(out, "/gravity/match")]
+    ok = [m for m in matches if m["ok"]]
+    assert len(ok) >= 5 and not any(m["accepted"] for m in ok)
+    assert all(m["reason"].startswith(("track", "signal")) for m in ok)
+    assert not any(b'"position_fix"' in p for _t, _ns, p in iter_payloads(out, "/estimation/update"))
+
+
 def test_cli_gravity_replay_records_fixes_and_gps_input_deterministically(tmp_path):
-    res, out = _replay(tmp_path, "a")
+    res, out = _replay(tmp_path, "a", "--gravity-accept-all")
     assert res.returncode == 0, res.stderr
     assert "Traceback" not in res.stderr
     assert "horizontal error vs withheld GNSS" in res.stdout and "min after cut" in res.stdout
@@ -75,7 +92,7 @@ def test_cli_gravity_replay_records_fixes_and_gps_input_deterministically(tmp_pa
     assert topics["/input/gnss"] > 800  # withheld fixes still recorded (truth)
     # the navigator saw the fixes: position_fix measurement updates exist
     assert any(b'"position_fix"' in p for _t, _ns, p in iter_payloads(out, "/estimation/update"))
-    res2, out2 = _replay(tmp_path, "b")
+    res2, out2 = _replay(tmp_path, "b", "--gravity-accept-all")
     assert res2.returncode == 0
     for topic in ("/input/position_fix", "/inject/gps_input", "/gravity/error"):
         assert list(iter_payloads(out, topic)) == list(iter_payloads(out2, topic))

@@ -76,7 +76,8 @@ class Batch:
 class MavlinkLink:
     """The autopilot link. ``start(loop, put)`` runs the reader thread; ``put`` gets Batch and LinkStatus."""
 
-    def __init__(self, link: LinkConfig, streams: StreamConfig, *, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, link: LinkConfig, streams: StreamConfig, *, clock: Callable[[], float] = time.monotonic,
+                 gravity=None) -> None:
         self.config = link
         self.streams = streams
         self.spec = parse_url(link.connect, link.baud)
@@ -84,7 +85,8 @@ class MavlinkLink:
         self.clock = clock
         # a configured target system without a component means its autopilot (MAV_COMP_ID_AUTOPILOT1)
         ts = link.target_system or None
-        self.decoder = MavlinkDecoder(ts, (link.target_component or 1) if ts else None)
+        # gravity: a NamedValueGravityDecoder for gravimeter readings (companion.sources.gravity), or None
+        self.decoder = MavlinkDecoder(ts, (link.target_component or 1) if ts else None, gravity=gravity)
         self.mav = self._new_mav()
         self.counts: Counter[str] = Counter()  # link event counts: opened, lost, reboot, stream_requests, ...
         self.messages_in = 0
@@ -245,6 +247,9 @@ class MavlinkLink:
                         continue
                     src = (msg.get_srcSystem(), msg.get_srcComponent())
                     if self.decoder.target_system is None or src != (self.decoder.target_system, self.decoder.target_component):
+                        if evs:  # a gravimeter's readings from another component of the vehicle
+                            events += evs
+                            trigger = mtype
                         continue
                     last_rx = now
                     rate_counts[mtype] += 1

@@ -42,11 +42,21 @@ class Runtime:
     def __init__(self, config: Config, sink: Any, *, notifier: Notifier | None = None, nav_config: Any = None, log=None) -> None:
         self.config = config
         self.sink = sink
-        self.link = MavlinkLink(config.link, config.streams)
+        gravity, stages = None, []
+        self.gravity_stage = None
+        if config.gravity.map:  # gravity-aided: readings from the link, fixes into the navigator
+            from companion.gravity_nav import gravity_nav_config, live_gravity_stage
+            from companion.sources.gravity import NamedValueGravityDecoder
+
+            self.gravity_stage = live_gravity_stage(config.gravity)
+            stages.append(self.gravity_stage)
+            gravity = NamedValueGravityDecoder(config.gravity.named_value, config.gravity.sigma_mgal)
+            nav_config = nav_config or gravity_nav_config()
+        self.link = MavlinkLink(config.link, config.streams, gravity=gravity)
         sender = self.link.send if config.inject.mode == "inject" else None
         self.injector = Injector(config.inject, sender=sender)
         self.injector.on_sent = self._on_sent
-        self.pipeline: Pipeline = build_pipeline(sink, nav_config=nav_config, extra_stages=[self.injector])
+        self.pipeline: Pipeline = build_pipeline(sink, nav_config=nav_config, extra_stages=[*stages, self.injector])
         self.notifier = notifier if notifier is not None else Notifier()
         self.info = SourceInfo(kind="live", location=self.link.spec.url)
         self.latency_s: dict[str, array] = defaultdict(lambda: array("d"))
@@ -163,6 +173,10 @@ class Runtime:
 
     def summary_lines(self) -> list[str]:
         lines = []
+        g = self.gravity_stage
+        if g is not None:
+            lines.append(f"gravity      {g.n_fed} matcher samples ({g.matcher.name}), {g.n_fixes} fixes fused, "
+                         f"{g.n_rejected} rejected by the acceptance test, {g.n_failed} failed")
         ls = ", ".join(f"{k} {v}" for k, v in sorted(self.link.counts.items()))
         lines.append(f"link         {self.link.messages_in} messages in; events: {ls or 'none'}")
         for trig, vals in sorted(self.latency_s.items()):

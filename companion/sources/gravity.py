@@ -84,19 +84,27 @@ class NamedValueGravityDecoder:
         self.name = name
         self.sigma_mgal = sigma_mgal
 
-    def decode(self, msg, recv_s: float | None = None) -> GravityReading | None:
+    def value(self, msg) -> float | None:
+        """The reading (mGal) if ``msg`` is a NAMED_VALUE_FLOAT of this name with a finite value, else None."""
         if msg is None or msg.get_type() != "NAMED_VALUE_FLOAT":
             return None
         name = msg.name.decode("ascii", "ignore") if isinstance(msg.name, bytes) else str(msg.name)
         if name.rstrip("\x00").strip() != self.name:
             return None
         v = float(msg.value)
-        if not math.isfinite(v):
+        return v if math.isfinite(v) else None
+
+    def reading(self, t_s: float, value_mgal: float) -> GravityReading:
+        return GravityReading(t_s=float(t_s), gravity_mgal=value_mgal, sigma_mgal=self.sigma_mgal, sensor=f"mavlink:{self.name}")
+
+    def decode(self, msg, recv_s: float | None = None) -> GravityReading | None:
+        """Standalone use: time = time_boot_ms (s), else the receive time. (On a live link the MavlinkDecoder puts
+        the reading on its vehicle clock instead.)"""
+        v = self.value(msg)
+        if v is None:
             return None
         t = msg.time_boot_ms / 1000.0 if getattr(msg, "time_boot_ms", 0) else recv_s
-        if t is None:
-            return None
-        return GravityReading(t_s=float(t), gravity_mgal=v, sigma_mgal=self.sigma_mgal, sensor=f"mavlink:{self.name}")
+        return None if t is None else self.reading(t, v)
 
 
 # ---- live line sources --------------------------------------------------------------------------------

@@ -59,10 +59,14 @@ def _finite(*vals: float) -> bool:
 class MavlinkDecoder:
     """Stateful decoder: feed ``decode(msg, recv_s)``; it returns zero or more events."""
 
-    def __init__(self, target_system: int | None = None, target_component: int | None = None) -> None:
+    def __init__(self, target_system: int | None = None, target_component: int | None = None, *, gravity=None) -> None:
         self.clock = VehicleClock()
         self.target_system = target_system
         self.target_component = target_component
+        #: a companion.sources.gravity.NamedValueGravityDecoder (None: gravimeter readings are not decoded); its
+        #: NAMED_VALUE_FLOAT is accepted from any component of the autopilot's system (an autopilot Lua script sends
+        #: as the autopilot, a gravimeter as its own component)
+        self.gravity = gravity
         self.dropped: Counter[str] = Counter()
         self._last_boot_s: float | None = None
         self._last_boot_recv_s: float | None = None
@@ -99,6 +103,10 @@ class MavlinkDecoder:
         if self.target_system is None:
             self.dropped["before autopilot heartbeat"] += 1
             return []
+        if mtype == "NAMED_VALUE_FLOAT" and self.gravity is not None and src_sys == self.target_system:
+            out: list[Event] = []
+            self._named_value(msg, recv_s, out)
+            return out
         if src_sys != self.target_system or src_comp != self.target_component:
             self.dropped[f"other system {src_sys}/{src_comp}"] += 1
             return []
@@ -217,6 +225,14 @@ class MavlinkDecoder:
         text = msg.text if isinstance(msg.text, str) else msg.text.decode("ascii", "replace")
         out.append(StatusText(t_s=t_s, severity=int(msg.severity), text=text.rstrip("\x00")))
 
+    def _named_value(self, msg, recv_s: float, out: list[Event]) -> None:
+        """A gravimeter's NAMED_VALUE_FLOAT -> GravityReading on the vehicle clock (time_boot_ms; 0: receive time)."""
+        v = self.gravity.value(msg)
+        if v is None:
+            return
+        t_s = self._stamp(units.s_from_ms(msg.time_boot_ms) if msg.time_boot_ms else None, recv_s, out)
+        if t_s is not None:
+            out.append(self.gravity.reading(t_s, v))
 
 _HANDLERS = {
     "HEARTBEAT": MavlinkDecoder._heartbeat,

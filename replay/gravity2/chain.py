@@ -59,16 +59,18 @@ class ChainResult:
 def run_gravity_chain(events: list[Event], lmap: LocalGravityMap, placement: Placement, deny_gnss_after_s: float,
                       matcher: Matcher | None, gravimeter: SimulatedGravimeter | None = None,
                       readings: list[GravityReading] | None = None, gravity_period_s: float = 1.0,
-                      nav_config: NavigatorConfig | None = None, sigma_floor_m: float = 1.0) -> ChainResult:
+                      nav_config: NavigatorConfig | None = None, sigma_floor_m: float = 1.0,
+                      acceptance="default") -> ChainResult:
     """Run the chain over time-ordered events: a thin wrapper over the streaming stages of
     companion.gravity_nav in a companion.pipeline.Pipeline (one implementation for CLI and benchmarks).
     matcher=None gives the unaided (INS-only) reference.
 
     Each matcher fix reaches the Navigator as a PositionFix with sigma = max(matcher sigma, sigma_floor_m):
     a matcher's own spread can be overconfident (cell quantisation, map ambiguity); the floor keeps one bad fix
-    from dragging the INS velocity."""
-    from companion.gravity_nav import (GnssDenial, GnssDeniedNavigator, GravityMatchStage, GravitySimStage,
-                                       gravity_nav_config)
+    from dragging the INS velocity. acceptance: a companion.gravity_nav.FixAcceptance ("default": FixAcceptance();
+    None: every fix is fused)."""
+    from companion.gravity_nav import (FixAcceptance, GnssDenial, GnssDeniedNavigator, GravityMatchStage,
+                                       GravitySimStage, gravity_nav_config)
     from companion.pipeline import Pipeline
 
     if gravimeter is None and readings is None and matcher is not None:
@@ -84,7 +86,8 @@ def run_gravity_chain(events: list[Event], lmap: LocalGravityMap, placement: Pla
     if matcher is not None:
         if readings is None:
             stages.append(GravitySimStage(gravimeter, denial, gravity_period_s))
-        mstage = GravityMatchStage(lmap, matcher, placement, sigma_floor_m=sigma_floor_m)
+        acc = FixAcceptance() if acceptance == "default" else acceptance
+        mstage = GravityMatchStage(lmap, matcher, placement, sigma_floor_m=sigma_floor_m, acceptance=acc)
         stages.append(mstage)
     sink = _Collect()
     pipe = Pipeline(stages=stages, sink=sink)
@@ -136,7 +139,8 @@ class _Collect:
 
 def gravity_replay(log_path: str | Path, map_path: str | Path, deny_gnss_after_s: float, *, matcher: str = "viterbi",
                    place_lat_lon: tuple[float, float] | None = None, rotation_deg: float = 0.0, sigma_mgal: float = 1.0,
-                   cell_m: float | None = None, seed: int = 0, gravity_period_s: float = 1.0) -> ChainResult:
+                   cell_m: float | None = None, seed: int = 0, gravity_period_s: float = 1.0,
+                   acceptance="default") -> ChainResult:
     """CLI entry: read a dataflash/tlog log, withhold GNSS after `deny_gnss_after_s`, aid with a simulated
     gravimeter over `map_path` (flight placed at place_lat_lon, default the map centre) and a matcher."""
     from companion.sources.files import read_events
@@ -157,7 +161,7 @@ def gravity_replay(log_path: str | Path, map_path: str | Path, deny_gnss_after_s
         raise ValueError(f"unknown matcher {matcher!r} (viterbi, none)")
     floor = m.cells.cell_m if m is not None else 1.0  # a fix is not trusted below one map cell
     return run_gravity_chain(events, lmap, placement, deny_gnss_after_s, m, grav, gravity_period_s=gravity_period_s,
-                             sigma_floor_m=floor)
+                             sigma_floor_m=floor, acceptance=acceptance)
 
 
 def main(argv=None):  # python -m replay.gravity2.chain LOG MAP --deny-gnss-after S
@@ -171,10 +175,11 @@ def main(argv=None):  # python -m replay.gravity2.chain LOG MAP --deny-gnss-afte
     ap.add_argument("--place", type=float, nargs=2, metavar=("LAT", "LON"))
     ap.add_argument("--sigma-mgal", type=float, default=1.0)
     ap.add_argument("--cell-m", type=float, default=None)
+    ap.add_argument("--accept-all", action="store_true", help="fuse every matcher fix (no companion.gravity_nav.FixAcceptance)")
     a = ap.parse_args(argv)
     r = gravity_replay(a.log, a.map, a.deny_gnss_after, matcher=a.matcher, place_lat_lon=tuple(a.place) if a.place else None,
-                       sigma_mgal=a.sigma_mgal, cell_m=a.cell_m)
-    print(f"fixes sent {r.n_fixes_sent}; error after denial (min, m):")
+                       sigma_mgal=a.sigma_mgal, cell_m=a.cell_m, acceptance=None if a.accept_all else "default")
+    print(f"fixes {len(r.fixes)}, sent to the navigator {r.n_fixes_sent}; error after denial (min, m):")
     for t, e in r.table(30.0):
         print(f"  {t:6.2f}  {e:8.1f}")
     return 0 if math.isfinite(float(np.nanmean(r.error_m))) else 1
