@@ -214,6 +214,7 @@ def cmd_run(args) -> int:
         "inject.gps_id": args.gps_id,
         "record.out": args.out,
         "duration_s": args.duration,
+        "gravity.map": args.gravity_map,
     }
     try:
         for text in args.set or []:
@@ -316,6 +317,8 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--signing-key-file", default=None, help="MAVLink2 signing key (32 bytes raw or 64 hex characters)")
     n.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help="override any setting, e.g. inject.activate=gnss_loss")
     n.add_argument("--duration", type=_positive_float, default=None, help="stop after this many seconds")
+    n.add_argument("--gravity-map", default=None, metavar="FILE",
+                   help="gravity-aided: match NAMED_VALUE_FLOAT 'GRAV' readings (mGal) against this grid ([gravity] settings)")
     n.set_defaults(func=cmd_run)
 
     v = sub.add_parser("sim", help="simulated ArduPilot vehicle on a MAVLink link, for hardware-in-the-loop tests")
