@@ -94,6 +94,9 @@ class Config:
     inject: InjectConfig = field(default_factory=InjectConfig)
     record: RecordConfig = field(default_factory=RecordConfig)
     gravity: GravityConfig = field(default_factory=GravityConfig)
+    #: NavigatorConfig settings (companion.estimation.integrator) to change, e.g. the noise of the vehicle's sensors;
+    #: empty: the defaults (with [gravity]: companion.gravity_nav.gravity_nav_config)
+    navigator: dict[str, Any] = field(default_factory=dict)
     duration_s: float = 0.0  # stop after this long (0: run until SIGTERM/SIGINT)
 
     def as_flat_dict(self) -> dict[str, str]:
@@ -102,7 +105,21 @@ class Config:
         for sec in ("link", "streams", "inject", "record", "gravity"):
             for k, v in dataclasses.asdict(getattr(self, sec)).items():
                 out[f"{sec}.{k}"] = str(v)
+        for k, v in sorted(self.navigator.items()):
+            out[f"navigator.{k}"] = str(v)
         return out
+
+    def nav_config(self):
+        """The NavigatorConfig of the run: defaults (gravity-aided: gravity_nav_config) with [navigator] applied."""
+        if self.gravity.map:
+            from companion.gravity_nav import gravity_nav_config
+
+            return gravity_nav_config(**self.navigator)
+        if not self.navigator:
+            return None
+        from companion.estimation.integrator import NavigatorConfig
+
+        return NavigatorConfig(**self.navigator)
 
 
 _SECTIONS = {"link": LinkConfig, "inject": InjectConfig, "record": RecordConfig, "gravity": GravityConfig}
@@ -282,10 +299,10 @@ def load_config(path: str | os.PathLike | None = None, overrides: dict[str, Any]
         if not isinstance(target, dict):
             raise ConfigError(f"[{sec}] must be a table")
         target[k] = value
-    unknown = set(data) - {"link", "streams", "inject", "record", "gravity", "duration_s"}
+    unknown = set(data) - {"link", "streams", "inject", "record", "gravity", "navigator", "duration_s"}
     if unknown:
         raise ConfigError(f"unknown setting(s) {', '.join(sorted(unknown))} (sections: link, streams, inject, record, "
-                          "gravity)")
+                          "gravity, navigator)")
     kw: dict[str, Any] = {}
     for name, cls in _SECTIONS.items():
         if name in data:
@@ -294,7 +311,31 @@ def load_config(path: str | os.PathLike | None = None, overrides: dict[str, Any]
         kw["streams"] = _streams(data["streams"])
     if "duration_s" in data:
         kw["duration_s"] = _coerce("duration_s", data["duration_s"], 0.0)
+    if "navigator" in data:
+        kw["navigator"] = _navigator(data["navigator"])
     return _validate(Config(**kw))
+
+
+def _navigator(table: Any) -> dict[str, Any]:
+    """[navigator]: scalar NavigatorConfig settings, type-checked against their defaults and then by NavigatorConfig."""
+    from companion.estimation.integrator import NavigatorConfig
+
+    if not isinstance(table, dict):
+        raise ConfigError("[navigator] must be a table")
+    defaults = NavigatorConfig()
+    known = {f.name for f in dataclasses.fields(NavigatorConfig)
+             if isinstance(getattr(defaults, f.name), (bool, int, float, str))}
+    out: dict[str, Any] = {}
+    for k, v in table.items():
+        if k not in known:
+            raise ConfigError(f"[navigator] unknown setting {k!r} (scalar fields of "
+                              "companion.estimation.integrator.NavigatorConfig)")
+        out[k] = _coerce(f"navigator.{k}", v, getattr(defaults, k))
+    try:
+        NavigatorConfig(**out)
+    except (ValueError, TypeError) as err:
+        raise ConfigError(f"[navigator] {err}") from None
+    return out
 
 
 def parse_override(text: str) -> tuple[str, Any]:

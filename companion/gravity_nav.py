@@ -153,7 +153,8 @@ class FixAcceptance:
     * track: the INS track over the window is at least ``min_track_cells`` map cells long (fewer cells: the window
       holds fewer independent map values than unknowns);
     * signal: the gravity variation along the window stands out of the noise: sqrt(max(var(g) - sigma^2, 0)) >=
-      ``min_signal_ratio`` x sigma, with sigma the matcher's measurement noise (mGal).
+      ``min_signal_ratio`` x sigma, with sigma the noise of the values the matcher was fed (mGal): the gravimeter's
+      sigma, divided by sqrt(n) where n readings were averaged into one sample.
     """
 
     min_track_cells: float = 2.0
@@ -216,7 +217,7 @@ class GravityMatchStage:
         self._frame: LocalFrame | None = None
         self._prev: FusedState | None = None
         self._pending: deque[GravityReading] = deque()
-        self._acc: list[np.ndarray] = []  # readings of the current stretch: (t, n, e, vn, ve, g) in map NE
+        self._acc: list[np.ndarray] = []  # readings of the current stretch: (t, n, e, vn, ve, g, sigma) in map NE
         self._acc_dist_m = 0.0  # track length of the stretch, from the last reading of the previous one
         self._acc_last: np.ndarray | None = None
         self._fed: deque[np.ndarray] = deque(maxlen=max(2, int(getattr(matcher, "window_len", 2))))
@@ -266,7 +267,7 @@ class GravityMatchStage:
         xa, xb = self._map_sample(a), self._map_sample(b)
         w = (r.t_s - a.t_s) / (b.t_s - a.t_s) if b.t_s > a.t_s else 1.0
         x = xa + w * (xb - xa)
-        sample = np.array([r.t_s, x[0], x[1], x[2], x[3], r.gravity_mgal])
+        sample = np.array([r.t_s, x[0], x[1], x[2], x[3], r.gravity_mgal, self.sigma_mgal])
         if self.feed_spacing_m is None:
             return self._feed(sample)
         if self._acc_last is not None:
@@ -276,6 +277,7 @@ class GravityMatchStage:
         if self._acc_dist_m < self.feed_spacing_m:
             return []
         mean = np.mean(np.asarray(self._acc), axis=0)
+        mean[6] = self.sigma_mgal / math.sqrt(len(self._acc))  # noise of a mean of n readings
         self._acc, self._acc_dist_m = [], 0.0
         return self._feed(mean)
 
@@ -295,8 +297,9 @@ class GravityMatchStage:
         sig = float(max(m.sigma_m, self.sigma_floor_m)) if math.isfinite(m.sigma_m) else self.sigma_floor_m
         win = np.asarray(self._fed)
         track_m = float(np.sum(np.hypot(*np.diff(win[:, 1:3], axis=0).T))) if len(win) > 1 else 0.0
-        signal = window_signal_mgal(win[:, 5], self.sigma_mgal)
-        why = self.acceptance.check(track_m, self.cell_m, signal, self.sigma_mgal) if self.acceptance else ""
+        sigma_fed = float(np.sqrt(np.mean(win[:, 6] ** 2)))
+        signal = window_signal_mgal(win[:, 5], sigma_fed)
+        why = self.acceptance.check(track_m, self.cell_m, signal, sigma_fed) if self.acceptance else ""
         t = float(m.t_s)
         rec = MatchRecord(t, True, m.method, float(ne[0]), float(ne[1]), lat, lon, float(m.sigma_m),
                           float(m.quality), why, float(m.compute_time_s), not why, track_m, signal)

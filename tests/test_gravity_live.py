@@ -146,6 +146,7 @@ def test_geographic_stage_uses_lat_lon_averages_readings_and_gates_fixes(accept)
         assert fixes[0].sigma_n_m == pytest.approx(max(400.0, stage.cell_m))
     else:
         assert fixes == [] and all(not r.accepted and r.reason.startswith("signal") for r in recs)
+        assert all("sigma 0.21" in r.reason for r in recs)  # 1 mGal readings, ~21 averaged per sample
     # the window of the first fix: fed samples 1..3, two stretches of ~3.15 km
     assert recs[0].track_m == pytest.approx(np.hypot(*np.diff(fed[:3, 1:3], axis=0).T).sum())
     assert 6000.0 < recs[0].track_m < 6500.0
@@ -158,11 +159,27 @@ def test_gravity_settings_are_checked_at_start(tmp_path):
     cfg = load_config(None, {**base, "gravity.map": str(grid), "gravity.named_value": "GRAVX"})
     assert cfg.gravity.map == str(grid) and cfg.gravity.named_value == "GRAVX" and cfg.gravity.matcher == "viterbi"
     assert cfg.as_flat_dict()["gravity.sigma_mgal"] == "1.0"
+    nav = load_config(None, {**base, "gravity.map": str(grid), "navigator.uere_h_m": 2.0}).nav_config()
+    assert nav.gnss_sigma_model == "accuracy" and nav.fuse_predictor is False and nav.uere_h_m == 2.0
     for over, text in [({"gravity.map": str(tmp_path / "missing.nc")}, "is not a file"),
                        ({"gravity.map": str(grid), "gravity.matcher": "tercom"}, "gravity.matcher"),
                        ({"gravity.map": str(grid), "gravity.named_value": "ELEVENCHARS"}, "1-10 characters"),
                        ({"gravity.map": str(grid), "gravity.sigma_mgal": 0}, "sigma_mgal"),
                        ({"gravity.map": str(grid), "gravity.accept_min_track_cells": -1}, "accept_min_track_cells"),
                        ({"gravity.mapp": "x"}, "unknown setting 'mapp'")]:
+        with pytest.raises(ConfigError, match=text):
+            load_config(None, {**base, **over})
+
+
+def test_navigator_settings_section():
+    base = {"link.connect": "udpin:127.0.0.1:14550"}
+    cfg = load_config(None, {**base, "navigator.att_sigma_tilt_rad": 0.001, "navigator.fuse_predictor": False})
+    nav = cfg.nav_config()
+    assert nav.att_sigma_tilt_rad == 0.001 and nav.fuse_predictor is False and nav.gnss_sigma_model == "short_term"
+    assert cfg.as_flat_dict()["navigator.att_sigma_tilt_rad"] == "0.001"
+    assert load_config(None, base).nav_config() is None  # defaults
+    for over, text in [({"navigator.knn": 3}, "unknown setting 'knn'"),
+                       ({"navigator.att_sigma_tilt_rad": "x"}, "expected a number"),
+                       ({"navigator.gnss_sigma_model": "magic"}, "gnss_sigma_model")]:
         with pytest.raises(ConfigError, match=text):
             load_config(None, {**base, **over})

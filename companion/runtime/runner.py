@@ -45,13 +45,13 @@ class Runtime:
         gravity, stages = None, []
         self.gravity_stage = None
         if config.gravity.map:  # gravity-aided: readings from the link, fixes into the navigator
-            from companion.gravity_nav import gravity_nav_config, live_gravity_stage
+            from companion.gravity_nav import live_gravity_stage
             from companion.sources.gravity import NamedValueGravityDecoder
 
             self.gravity_stage = live_gravity_stage(config.gravity)
             stages.append(self.gravity_stage)
             gravity = NamedValueGravityDecoder(config.gravity.named_value, config.gravity.sigma_mgal)
-            nav_config = nav_config or gravity_nav_config()
+        nav_config = nav_config or config.nav_config()
         self.link = MavlinkLink(config.link, config.streams, gravity=gravity)
         sender = self.link.send if config.inject.mode == "inject" else None
         self.injector = Injector(config.inject, sender=sender)
