@@ -340,6 +340,10 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--cruise-heading", type=float, default=0.0, help="direction of the first line, deg from north (default 0); later lines lie to its right")
     c.add_argument("--cruise-alt", type=float, default=None, help="survey height above the origin m (default 300; ship 0)")
     c.add_argument("--max-lines", type=int, default=None, help="turn back across the box after this many lines (default: keep adding lines)")
+    # let "--origin -40.5,155.6" read as a value, not an option (argparse only knows plain negative numbers)
+    import re
+
+    v._negative_number_matcher = re.compile(r"^-\d+$|^-\d*\.?\d+(,-?\d*\.?\d+)?$")
     gr = v.add_argument_group("gravimeter: NAMED_VALUE_FLOAT readings of a gravity map at the true position (generated flights)")
     gr.add_argument("--gravity-map", metavar="FILE", default=None, help="gravity anomaly grid (netCDF, mGal, lat/lon axes)")
     gr.add_argument("--gravity-name", default="GRAV", help="NAMED_VALUE_FLOAT name (default GRAV, at most 10 characters)")

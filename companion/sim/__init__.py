@@ -4,11 +4,14 @@
   attitude, body rates and specific force (pure numpy);
 * :mod:`companion.sim.sensors`: IMU, magnetometer, GNSS (with outages) and attitude-estimate models;
 * :mod:`companion.sim.flight`: one seeded simulated flight on the autopilot's boot clock, and the sample;
+* :mod:`companion.sim.cruise`: hours-long lawn-mower survey cruises (aircraft or ship speed);
+* :mod:`companion.sim.vehicle`: a simulated ArduPilot on a MAVLink link (``companion sim``), with a gravimeter;
 * :mod:`companion.sim.mavlink_out`: ArduCopter-like MAVLink messages and framing;
 * :mod:`companion.sim.tlog`: .tlog writing;
 * ``python -m companion.sim.make_sample``: regenerates ``logs/sample_flight.tlog``.
 """
 
+from companion.sim.cruise import AIRCRAFT, SHIP, cruise_profile
 from companion.sim.flight import SimConfig, SimulatedFlight, sample_flight, sample_profile, simulate_flight
 from companion.sim.trajectory import (
     Climb,
@@ -24,6 +27,9 @@ from companion.sim.trajectory import (
 )
 
 __all__ = [
+    "AIRCRAFT",
+    "SHIP",
+    "cruise_profile",
     "Climb",
     "FlightProfile",
     "Hold",

@@ -73,7 +73,7 @@ class LazyItems:
     """Items built a chunk of playback time at a time: ``build(t0, t1)`` returns the items with t0 <= play_s < t1,
     in order. Iterating holds one chunk; ``end_s`` is the last item's time."""
 
-    def __init__(self, build: Callable[[float, float], list[Item]], end_s: float, chunk_s: float = 30.0) -> None:
+    def __init__(self, build: Callable[[float, float], list[Item]], end_s: float, chunk_s: float = 5.0) -> None:
         if chunk_s <= 0:
             raise ValueError("chunk_s must be positive")
         self.build, self.end_s, self.chunk_s = build, float(end_s), float(chunk_s)
@@ -152,7 +152,7 @@ def gravity_readings(profile, lmap, *, hz: float = 1.0, sigma_mgal: float = 1.0,
 
 
 def playback_from_flight(flight=None, *, gravity: tuple[np.ndarray, np.ndarray] | None = None,
-                         gravity_name: str = "GRAV", lazy: bool | None = None, chunk_s: float = 30.0) -> Playback:
+                         gravity_name: str = "GRAV", lazy: bool | None = None, chunk_s: float = 5.0) -> Playback:
     """A generated flight (default: the project's sample flight); truth from its trajectory.
 
     ``gravity``: (boot times, mGal) from :func:`gravity_readings`, sent as NAMED_VALUE_FLOAT ``gravity_name``.
@@ -263,6 +263,10 @@ class SimStats:
     requests: list = field(default_factory=list)
     connections: int = 0
     reboots: int = 0
+    #: pacing: the most any message was sent behind its playback time (playback s; wall s = this / speed),
+    #: and how many were sent more than 10 ms (wall) late
+    max_lag_s: float = 0.0
+    late_messages: int = 0
 
 
 class VehicleSim:
@@ -546,6 +550,11 @@ class VehicleSim:
                     it = pending
                     t = it.play_s + loop_offset
                     pending = next(src, None)
+                    lag = play_now() - t
+                    if lag > self.stats.max_lag_s:
+                        self.stats.max_lag_s = lag
+                    if lag > 0.01 * self.speed:
+                        self.stats.late_messages += 1
                     if silent:
                         continue
                     mtype = it.msg.get_type()
@@ -572,6 +581,7 @@ class VehicleSim:
             self._log({"event": "end", "play_s": play_now(), "gps_input": self.stats.gps_input,
                        "gps_input_signed": self.stats.gps_input_signed, "requests": len(self.stats.requests),
                        "connections": self.stats.connections, "received": dict(self.stats.received),
+                       "max_lag_s": self.stats.max_lag_s, "late_messages": self.stats.late_messages,
                        "sent": dict(self.stats.sent)})
             self._close_link()
             if self._conn is not None:
@@ -601,6 +611,9 @@ def circuit_profile(circuits: int = 2):
         Hold(4.0, mode="STABILIZE"),
     ]
     return FlightProfile(legs, CANBERRA_FIELD, start_heading_deg=0.0)
+
+
+_NOTES: list[str] = []  # details printed after the listening line
 
 
 def _lat_lon(text: str, what: str) -> tuple[float, float]:
@@ -639,7 +652,8 @@ def _gravity_from_args(args, profile) -> tuple[np.ndarray, np.ndarray]:
     try:
         lmap = LocalGravityMap.around(load_grid(args.gravity_map))
     except (MapFormatError, OSError, ValueError, KeyError) as err:
-        raise ValueError(f"gravity map {args.gravity_map}: {err}") from None
+        first = (str(err).splitlines() or [type(err).__name__])[0]  # xarray's hints run over several lines
+        raise ValueError(f"gravity map {args.gravity_map}: {first}") from None
     if lmap.frame is None:
         raise ValueError(f"gravity map {args.gravity_map}: needs lat/lon axes to fly a generated flight over it")
     f = profile.frame
@@ -652,9 +666,9 @@ def _gravity_from_args(args, profile) -> tuple[np.ndarray, np.ndarray]:
     t, v = gravity_readings(profile, lmap, hz=hz, sigma_mgal=args.gravity_sigma_mgal, seed=seed)
     expected = int(math.floor((profile.duration_s - 0.05) * hz + 1e-9)) + 1
     off = expected - len(t)
-    print(f"sim: gravimeter {len(t)} readings at {hz:g} Hz as NAMED_VALUE_FLOAT {args.gravity_name!r} "
+    _NOTES.append(f"sim: gravimeter {len(t)} readings at {hz:g} Hz as NAMED_VALUE_FLOAT {args.gravity_name!r} "
           f"(sigma {args.gravity_sigma_mgal:g} mGal, map {Path(args.gravity_map).name})"
-          + (f"; {off} positions off the map send nothing" if off else ""), flush=True)
+          + (f"; {off} positions off the map send nothing" if off else ""))
     return t, v
 
 
@@ -662,6 +676,7 @@ def run_sim(args) -> int:
     """``companion sim`` entry point (argparse namespace from companion.cli)."""
     from companion.config import load_signing_key
 
+    _NOTES.clear()
     if args.log:
         if getattr(args, "gravity_map", None):
             raise ValueError("--gravity-map works with a generated flight (--profile), not with --log")
@@ -683,8 +698,8 @@ def run_sim(args) -> int:
             SimConfig(gnss_rate_hz=gnss_hz, imu_rate_hz=imu_hz, attitude_rate_hz=getattr(args, "attitude_hz", 10.0)),
         )
         playback = playback_from_flight(flight, gravity=gravity, gravity_name=getattr(args, "gravity_name", "GRAV"))
-        print(f"sim: built {profile.duration_s / 3600:.2f} h flight in {time.perf_counter() - t0:.1f} s "
-              f"(IMU {imu_hz:g} Hz, GNSS {gnss_hz:g} Hz, attitude {getattr(args, 'attitude_hz', 10.0):g} Hz)", flush=True)
+        _NOTES.append(f"sim: built {profile.duration_s / 3600:.2f} h flight in {time.perf_counter() - t0:.1f} s "
+                      f"(IMU {imu_hz:g} Hz, GNSS {gnss_hz:g} Hz, attitude {getattr(args, 'attitude_hz', 10.0):g} Hz)")
     faults = Faults(
         gnss_off=tuple(args.gnss_off) if args.gnss_off else None,
         imu_off=tuple(args.imu_off) if args.imu_off else None,
@@ -701,7 +716,12 @@ def run_sim(args) -> int:
     signal.signal(signal.SIGTERM, sim.stop)
     signal.signal(signal.SIGINT, sim.stop)
     print(f"sim: {playback.description} on {args.listen} from {args.start:g} s at x{args.speed:g}", flush=True)
+    for note in _NOTES:  # after the first line, which says the simulator is about to listen
+        print(note, flush=True)
+    _NOTES.clear()
     st = sim.run()
     print(f"sim: sent {sum(st.sent.values())} messages, received {st.gps_input} GPS_INPUT "
-          f"({st.gps_input_signed} signed), {len(st.requests)} interval requests, {st.connections} connections", flush=True)
+          f"({st.gps_input_signed} signed), {len(st.requests)} interval requests, {st.connections} connections; "
+          f"pacing: max lag {st.max_lag_s:.3f} s playback ({st.max_lag_s / sim.speed * 1e3:.1f} ms wall), "
+          f"{st.late_messages} messages > 10 ms late", flush=True)
     return 0
