@@ -330,6 +330,9 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--gnss-hz", type=_positive_float, default=None, help="generated flight: GNSS rate (default 10; cruise 5)")
     v.add_argument("--imu-hz", type=_positive_float, default=None, help="generated flight: IMU rate (default 50; cruise 25)")
     v.add_argument("--attitude-hz", type=_positive_float, default=10.0, help="generated flight: ATTITUDE rate (default 10)")
+    v.add_argument("--sensors", choices=("drone", "aircraft"), default="drone",
+                   help="generated flight: sensor set (drone: MEMS IMU + AHRS; aircraft: tactical IMU, navigation-grade "
+                        "attitude/heading), see companion.sim.flight.SENSOR_SETS")
     c = v.add_argument_group("cruise (--profile cruise): a lawn-mower survey from --origin, lines along --cruise-heading")
     c.add_argument("--hours", type=_positive_float, default=3.0, help="flight duration in hours (default 3)")
     c.add_argument("--cruise-speed", type=_positive_float, default=150.0,

@@ -197,3 +197,20 @@ def test_cli_gravity_errors_are_one_line(tmp_path, capsys):
     assert main([*base, "--origin", "-40.5,165.0", "--gravity-map", str(tasman)]) == EXIT_ERROR  # east of 160E
     err = capsys.readouterr().err
     assert "off the gravity map" in err and err.count("\n") == 1
+
+
+def test_aircraft_sensor_set_is_better_than_the_drone_set():
+    from companion.sim.flight import SENSOR_SETS
+
+    prof = cruise_profile(LocalFrame(-40.0, 156.0, 0.0), hours=0.15, speed_mps=150.0, line_km=60.0, spacing_km=10.0)
+    errs = {}
+    for name, kw in SENSOR_SETS.items():
+        f = simulate_flight(prof, 3, SimConfig(imu_rate_hz=25.0, gnss_rate_hz=5.0, **kw))
+        att = np.degrees(np.abs(f.attitude_euler_rad - f.truth_attitude.euler_rad))
+        att[:, 2] = (att[:, 2] + 180.0) % 360.0 - 180.0
+        acc = f.imu.accel_frd_mps2 - f.truth_imu.specific_force_frd_mps2
+        errs[name] = (np.sqrt(np.mean(att[:, :2] ** 2)), np.sqrt(np.mean(att[:, 2] ** 2)), np.abs(acc.mean(axis=0)).max())
+    assert SENSOR_SETS["drone"] == {} and SENSOR_SETS["aircraft"]["imu2"] is None
+    d, a = errs["drone"], errs["aircraft"]
+    assert a[0] < 0.05 < d[0] / 2 and a[1] < 0.15 < d[1] / 2  # tilt / heading error, deg
+    assert a[2] < 0.01 < d[2]  # mean accelerometer error (bias), m/s^2

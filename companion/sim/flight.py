@@ -8,6 +8,7 @@ stream (changing one model does not reshuffle the others).
 from __future__ import annotations
 
 import calendar
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -57,6 +58,22 @@ COPTER_MODES = {
 MAV_SEVERITY_CRITICAL = 2
 MAV_SEVERITY_WARNING = 4
 MAV_SEVERITY_INFO = 6
+
+
+#: Sensor sets of generated flights, by name (``companion sim --sensors``): "drone" is the multicopter's MEMS IMU and
+#: AHRS (the defaults below); "aircraft" is a tactical-grade IMU (200 ug accelerometer bias, ~1 deg/h gyro bias) with a
+#: navigation-grade attitude and heading reference (0.02 deg tilt, 0.05 deg heading) -- the class of INS the
+#: gravity-matching papers assume. Noise stays above the RAW_IMU quantum (1 mg, 1 mrad/s) so rounding dithers.
+SENSOR_SETS: dict[str, dict] = {
+    "drone": {},
+    "aircraft": {
+        "imu": ImuModel(accel_noise_mps2=0.02, gyro_noise_radps=0.0015, accel_bias_sigma_mps2=0.002,
+                        gyro_bias_sigma_radps=5e-6),
+        "imu2": None,
+        "attitude": AttitudeEstimateModel(roll_pitch_sigma_rad=math.radians(0.02), yaw_sigma_rad=math.radians(0.05),
+                                          tau_s=60.0, rate_noise_radps=0.0005),
+    },
+}
 
 
 @dataclass(frozen=True)

@@ -682,7 +682,7 @@ def run_sim(args) -> int:
             raise ValueError("--gravity-map works with a generated flight (--profile), not with --log")
         playback = playback_from_tlog(args.log)
     else:
-        from companion.sim.flight import SAMPLE_SEED, SimConfig, sample_profile, simulate_flight
+        from companion.sim.flight import SAMPLE_SEED, SENSOR_SETS, SimConfig, sample_profile, simulate_flight
 
         cruise = args.profile == "cruise"
         if cruise:
@@ -695,11 +695,13 @@ def run_sim(args) -> int:
         t0 = time.perf_counter()
         flight = simulate_flight(
             profile, args.seed if args.seed is not None else SAMPLE_SEED,
-            SimConfig(gnss_rate_hz=gnss_hz, imu_rate_hz=imu_hz, attitude_rate_hz=getattr(args, "attitude_hz", 10.0)),
+            SimConfig(gnss_rate_hz=gnss_hz, imu_rate_hz=imu_hz, attitude_rate_hz=getattr(args, "attitude_hz", 10.0),
+                      **SENSOR_SETS[getattr(args, "sensors", "drone")]),
         )
         playback = playback_from_flight(flight, gravity=gravity, gravity_name=getattr(args, "gravity_name", "GRAV"))
         _NOTES.append(f"sim: built {profile.duration_s / 3600:.2f} h flight in {time.perf_counter() - t0:.1f} s "
-                      f"(IMU {imu_hz:g} Hz, GNSS {gnss_hz:g} Hz, attitude {getattr(args, 'attitude_hz', 10.0):g} Hz)")
+                      f"(IMU {imu_hz:g} Hz, GNSS {gnss_hz:g} Hz, attitude {getattr(args, 'attitude_hz', 10.0):g} Hz, "
+                      f"{getattr(args, 'sensors', 'drone')} sensors)")
     faults = Faults(
         gnss_off=tuple(args.gnss_off) if args.gnss_off else None,
         imu_off=tuple(args.imu_off) if args.imu_off else None,

@@ -31,6 +31,15 @@ SHARED = Path(__import__("os").environ.get("COMPANION_SHARED", REPO / ".." / "sh
 MAP = SHARED / "data" / "gravity" / "tasman_grav_west_145E-160E.nc"
 RESULTS = REPO / "replay" / "results"
 CLI = [sys.executable, "-m", "companion.cli"]
+#: companion-side [navigator] settings matching the simulator's sensor set (companion.sim.flight.SENSOR_SETS):
+#: the defaults describe a multicopter's MEMS IMU and AHRS; an aircraft's tactical IMU and navigation-grade
+#: attitude/heading reference are told to the filter (heading from ATTITUDE fused: it is the better reference there)
+NAV_SETTINGS = {
+    "drone": {},
+    "aircraft": {"accel_noise_mps2_rthz": 0.01, "gyro_noise_radps_rthz": 0.001, "accel_bias_sigma_mps2": 0.005,
+                 "gyro_bias_sigma_radps": 0.0005, "att_sigma_tilt_rad": 0.001, "att_sigma_yaw_rad": 0.002,
+                 "fuse_attitude_yaw": True},
+}
 
 
 def _free_port() -> int:
@@ -46,7 +55,7 @@ def run_once(a, variant: str, work: Path) -> dict:
     sim_cmd = [*CLI, "sim", "--profile", "cruise", "--hours", a.hours, "--cruise-speed", a.cruise_speed,
                "--origin", a.origin, "--line-km", a.line_km, "--spacing-km", a.spacing_km,
                "--gravity-map", a.map, "--gravity-sigma-mgal", a.sigma_mgal, "--seed", a.seed,
-               "--imu-hz", a.imu_hz, "--gnss-hz", a.gnss_hz, "--gnss-off", a.gnss_off_s, 1e9,
+               "--imu-hz", a.imu_hz, "--gnss-hz", a.gnss_hz, "--gnss-off", a.gnss_off_s, 1e9, "--sensors", a.sensors,
                "--listen", f"tcpin:127.0.0.1:{port}", "--speed", a.speed_up, "--record", rec]
     sim = subprocess.Popen(list(map(str, sim_cmd)), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     first = sim.stdout.readline()
@@ -55,6 +64,8 @@ def run_once(a, variant: str, work: Path) -> dict:
     comp_cmd = [*CLI, "run", "--connect", f"tcp:127.0.0.1:{port}", "--out", work / f"companion_{variant}.mcap",
                 "--inject", "inject", "--gravity-map", a.map, "--set", f"gravity.sigma_mgal={a.sigma_mgal}",
                 "--set", "record.segment_s=900", "--set", "inject.max_speed_mps=400"]
+    for k, v in NAV_SETTINGS[a.sensors].items():
+        comp_cmd += ["--set", f"navigator.{k}={str(v).lower() if isinstance(v, bool) else v}"]
     if variant == "ins":
         comp_cmd += ["--set", "gravity.accept_min_signal_ratio=1e9"]
     comp = subprocess.Popen(list(map(str, comp_cmd)), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -95,6 +106,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--imu-hz", type=float, default=25.0)
     ap.add_argument("--gnss-hz", type=float, default=5.0)
+    ap.add_argument("--sensors", choices=tuple(NAV_SETTINGS), default="aircraft", help="simulated sensor set")
     ap.add_argument("--map", default=str(MAP))
     ap.add_argument("--work", default="out/gravity_live")
     ap.add_argument("--no-write", action="store_true", help="print only (no results file, no plot)")
@@ -120,14 +132,16 @@ def main(argv=None) -> int:
                         f"{np.mean(r['h_acc_m'][sel]):.0f}"])
     cmd = (f"nice -n 5 .venv/bin/python -m replay.gravity2.live_long --hours {a.hours:g} --speed-up {a.speed_up:g} "
            f"--cruise-speed {a.cruise_speed:g} --origin {a.origin} --line-km {a.line_km:g} --spacing-km {a.spacing_km:g} "
-           f"--gnss-off-s {a.gnss_off_s:g} --sigma-mgal {a.sigma_mgal:g} --seed {a.seed}")
+           f"--gnss-off-s {a.gnss_off_s:g} --sigma-mgal {a.sigma_mgal:g} --seed {a.seed} --sensors {a.sensors}")
     text = "\n".join([
-        "# Gravity-aided flight through a long GNSS denial, live (`companion sim` + `companion run`)",
+        f"# Gravity-aided flight through a long GNSS denial, live (`companion sim` + `companion run`), {a.sensors} sensors",
         "",
         f"`{cmd}`",
         "",
         f"Simulated aircraft: {a.hours:g} h lawn-mower survey at {a.cruise_speed:g} m/s from {a.origin} over the Tasman "
-        f"grid (Sandwell & Smith V15.2, ~2.9 km cells), lines {a.line_km:g} km, {a.spacing_km:g} km apart; IMU "
+        f"grid (Sandwell & Smith V15.2, ~2.9 km cells), lines {a.line_km:g} km, {a.spacing_km:g} km apart; "
+        f"{a.sensors} sensors (companion.sim.flight.SENSOR_SETS; navigator settings "
+        f"{NAV_SETTINGS[a.sensors] or 'defaults'}); IMU "
         f"{a.imu_hz:g} Hz, GNSS {a.gnss_hz:g} Hz until {a.gnss_off_s:g} s, then cut to the end; gravimeter 1 Hz "
         f"NAMED_VALUE_FLOAT, map value at the truth + N(0, {a.sigma_mgal:g} mGal). `companion run` (Viterbi RVBMP-2i, "
         "readings averaged per map cell of track, fix acceptance on) injects GPS_INPUT; the simulator scores every "
@@ -147,12 +161,12 @@ def main(argv=None) -> int:
         f"- INS: {runs['ins']['gravity'].removeprefix('gravity').strip()}",
         f"- {runs['aided']['latency'].removeprefix('latency').strip()} (aided run, wall clock at x{a.speed_up:g})",
         "",
-        "![error over time](gravity_live_error.png)",
+        f"![error over time](gravity_live_{a.sensors}_error.png)",
     ])
     print(text)
     if a.no_write:
         return 0
-    (RESULTS / "gravity_live.md").write_text(text + "\n")
+    (RESULTS / f"gravity_live_{a.sensors}.md").write_text(text + "\n")
     import matplotlib
 
     matplotlib.use("Agg")
@@ -167,9 +181,9 @@ def main(argv=None) -> int:
     ax.set_yscale("log")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
-    ax.set_title(f"companion run, live GPS_INPUT: {a.hours:g} h cruise at {a.cruise_speed:g} m/s over the Tasman grid")
+    ax.set_title(f"companion run, live GPS_INPUT: {a.hours:g} h cruise at {a.cruise_speed:g} m/s, {a.sensors} sensors")
     fig.tight_layout()
-    fig.savefig(RESULTS / "gravity_live_error.png", dpi=110)
+    fig.savefig(RESULTS / f"gravity_live_{a.sensors}_error.png", dpi=110)
     return 0
 
 
