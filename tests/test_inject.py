@@ -246,3 +246,25 @@ def test_gnss_time_preferred_over_system_time():
     inj.process(replace(fix(9.9), gps_week=2357, gps_tow_s=518_423.0))
     rec = inj.process(state(t_s=10.0))[0]
     assert (rec.time_week, rec.time_week_ms) == (2357, 518_423_100)
+
+
+def test_altitude_without_vertical_aid_is_flagged_ignored_not_sent():
+    """After a long denial the navigator's height (no baro of its own) drifts without bound: beyond max_v_acc_alt_m
+    the altitude is flagged ignored (ArduPilot keeps its baro height) and repeats the last good one; the horizontal
+    fix still goes out. An out-of-range altitude with a small sigma_v is still refused."""
+    from companion.inject.gps_input import IGNORE_ALT, IGNORE_VEL_VERT, IGNORE_VERTICAL_ACCURACY
+
+    wire = Wire()
+    inj = Injector(InjectConfig(mode="inject", max_v_acc_alt_m=200.0), sender=wire)
+    (good,) = inj.process(state(t_s=10.0, sigma_v=150.0))
+    assert good.ignore_flags & IGNORE_ALT == 0 and good.alt_msl_m == 604.25
+    (rec,) = inj.process(state(t_s=11.0, sigma_h=900.0, sigma_v=4000.0, alt_msl_m=-9000.0, vel_d_mps=-40.0))
+    flags = IGNORE_ALT | IGNORE_VEL_VERT | IGNORE_VERTICAL_ACCURACY
+    assert rec.ignore_flags & flags == flags and rec.alt_msl_m == 604.25 and rec.vel_d_mps == 0.0 and rec.sent
+    got = decode_gps_input(wire.msgs[-1])
+    assert got["ignore_flags"] & flags == flags and got["alt_msl_m"] == pytest.approx(604.25)
+    assert got["lat_deg"] == pytest.approx(-35.3632, abs=1e-7)
+    (bad,) = inj.process(state(t_s=12.0, sigma_v=3.0, alt_msl_m=-9000.0))
+    assert isinstance(bad, InjectorDrop) and bad.reason == "altitude out of range"
+    with pytest.raises(ValueError):
+        InjectConfig(max_v_acc_3d_m=20.0, max_v_acc_alt_m=10.0)

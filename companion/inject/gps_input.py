@@ -76,6 +76,10 @@ class InjectConfig:
     max_h_acc_3d_m: float = 10.0  # 3D fix only while sigma_h is within this ...
     max_v_acc_3d_m: float = 20.0  # ... and sigma_v within this
     max_h_acc_2d_m: float = 50.0  # 2D fix up to this sigma_h; no fix beyond
+    # sigma_v beyond this: altitude, vertical velocity and its accuracy are flagged ignored (ArduPilot then keeps its
+    # barometric height; the navigator has no vertical aid of its own once the receiver is gone) and `alt` repeats
+    # the last altitude sent with a smaller sigma_v
+    max_v_acc_alt_m: float = 200.0
     satellites: int = 10  # satellites_visible reported with a fix (ArduPilot needs >= 6)
     uere_m: float = 2.5  # HDOP = sigma_h / uere_m, VDOP = sigma_v / uere_m
     max_speed_mps: float = 80.0  # a faster state is not plausible for the vehicle: not sent
@@ -102,6 +106,8 @@ class InjectConfig:
             raise ValueError(f"rate_hz must be in (0, 50], not {self.rate_hz:g}")
         if not 0 < self.max_h_acc_3d_m <= self.max_h_acc_2d_m:
             raise ValueError("need 0 < max_h_acc_3d_m <= max_h_acc_2d_m")
+        if not self.max_v_acc_alt_m >= self.max_v_acc_3d_m:
+            raise ValueError("need max_v_acc_alt_m >= max_v_acc_3d_m")
         if not self.max_v_acc_3d_m > 0:
             raise ValueError("max_v_acc_3d_m must be > 0")
         if not 6 <= self.satellites <= 254:
@@ -237,6 +243,7 @@ class Injector:
         self._active = self.config.activate == "always"
         self._floor_h_m = 0.0
         self._floor_v_m = 0.0
+        self._last_alt_m: float | None = None  # last altitude sent with sigma_v within max_v_acc_alt_m
         self._newest_input_t = -math.inf
         self._rx_fix: tuple[float, float, float, float] | None = None  # t, lat, lon, sigma_h of the receiver
         self._inconsistent = False
@@ -345,7 +352,7 @@ class Injector:
         self._last_state_t = s.t_s
         if self._last_out_t is not None and s.t_s - self._last_out_t < 1.0 / c.rate_hz - 1e-6:
             return out  # rate limit: not a fault, not recorded
-        why = _invalid(s, c)
+        why = _invalid(s, c, check_alt=not self._alt_ignored(s))
         if why:
             return out + self._drop(s.t_s, why)
         if s.t_s < self._newest_input_t - c.max_lag_s:
@@ -386,9 +393,19 @@ class Injector:
             return "inconsistent with the receiver"
         return ""
 
+    def _alt_ignored(self, s: FusedState) -> bool:
+        return not (_finite(s.sigma_v_m) and max(s.sigma_v_m, self._floor_v_m) <= self.config.max_v_acc_alt_m)
+
     def _record(self, s: FusedState) -> GpsInputRecord:
         c = self.config
         sh, sv = max(s.sigma_h_m, self._floor_h_m), max(s.sigma_v_m, self._floor_v_m)
+        alt, vd = s.alt_msl_m, s.vel_d_mps
+        flags = 0
+        if self._alt_ignored(s):
+            flags |= IGNORE_ALT | IGNORE_VEL_VERT | IGNORE_VERTICAL_ACCURACY
+            alt, vd = (self._last_alt_m if self._last_alt_m is not None else 0.0), 0.0
+        else:
+            self._last_alt_m = alt
         if sh <= c.max_h_acc_3d_m and sv <= c.max_v_acc_3d_m:
             fix, why = int(FixType.FIX_3D), "within 3D bounds"
         elif sh <= c.max_h_acc_2d_m:
@@ -396,7 +413,6 @@ class Injector:
             why = f"sigma_h {sh:.1f} m > {c.max_h_acc_3d_m:g}" if sh > c.max_h_acc_3d_m else f"sigma_v {sv:.1f} m > {c.max_v_acc_3d_m:g}"
         else:
             fix, why = int(FixType.NO_FIX), f"sigma_h {sh:.1f} m > {c.max_h_acc_2d_m:g}"
-        flags = 0
         cov = s.cov_diag
         if len(cov) >= 6 and _finite(cov[3], cov[4]) and min(cov[3], cov[4]) >= 0:
             speed_acc = math.sqrt(max(cov[3], cov[4]))
@@ -414,8 +430,8 @@ class Injector:
             yaw = units.cdeg_from_deg(math.degrees(s.yaw_rad) % 360.0) % 36000 or 36000
         return GpsInputRecord(
             t_s=s.t_s, mode=c.mode, sent=False, gps_id=c.gps_id, fix_type=fix, fix_reason=why,
-            lat_deg=s.lat_deg, lon_deg=s.lon_deg, alt_msl_m=s.alt_msl_m,
-            vel_n_mps=s.vel_n_mps, vel_e_mps=s.vel_e_mps, vel_d_mps=s.vel_d_mps,
+            lat_deg=s.lat_deg, lon_deg=s.lon_deg, alt_msl_m=alt,
+            vel_n_mps=s.vel_n_mps, vel_e_mps=s.vel_e_mps, vel_d_mps=vd,
             h_acc_m=sh, v_acc_m=sv, speed_acc_mps=speed_acc, h_floor_m=self._floor_h_m, hdop=sh / c.uere_m, vdop=sv / c.uere_m,
             satellites=c.satellites if fix >= FixType.FIX_2D else 0, ignore_flags=flags,
             time_boot_us=units.us_from_s(boot_s), time_week=week, time_week_ms=week_ms, yaw_cdeg=yaw,
@@ -428,15 +444,15 @@ def _replace_sent(rec: GpsInputRecord) -> GpsInputRecord:
     return replace(rec, sent=True)
 
 
-def _invalid(s: FusedState, c: InjectConfig) -> str:
-    """Why a fused state cannot be stood behind ("" when it can)."""
+def _invalid(s: FusedState, c: InjectConfig, check_alt: bool = True) -> str:
+    """Why a fused state cannot be stood behind ("" when it can); check_alt False: its altitude is not sent."""
     if not _finite(s.lat_deg, s.lon_deg, s.alt_msl_m):
         return "non-finite position"
     if not (-90.0 <= s.lat_deg <= 90.0 and -180.0 <= s.lon_deg <= 180.0):
         return "lat/lon out of range"
     if units.degE7_from_deg(s.lat_deg) == 0 and units.degE7_from_deg(s.lon_deg) == 0:
         return "lat = lon = 0"
-    if not -1000.0 <= s.alt_msl_m <= 20000.0:
+    if check_alt and not -1000.0 <= s.alt_msl_m <= 20000.0:
         return "altitude out of range"
     if not _finite(s.vel_n_mps, s.vel_e_mps, s.vel_d_mps):
         return "non-finite velocity"
