@@ -258,7 +258,7 @@ def test_altitude_without_vertical_aid_is_flagged_ignored_not_sent():
     inj = Injector(InjectConfig(mode="inject", max_v_acc_alt_m=200.0), sender=wire)
     (good,) = inj.process(state(t_s=10.0, sigma_v=150.0))
     assert good.ignore_flags & IGNORE_ALT == 0 and good.alt_msl_m == 604.25
-    (rec,) = inj.process(state(t_s=11.0, sigma_h=900.0, sigma_v=4000.0, alt_msl_m=-9000.0, vel_d_mps=-40.0))
+    (rec,) = inj.process(state(t_s=11.0, sigma_h=900.0, sigma_v=4000.0, alt_msl_m=-9000.0, vel_d_mps=-400.0))
     flags = IGNORE_ALT | IGNORE_VEL_VERT | IGNORE_VERTICAL_ACCURACY
     assert rec.ignore_flags & flags == flags and rec.alt_msl_m == 604.25 and rec.vel_d_mps == 0.0 and rec.sent
     got = decode_gps_input(wire.msgs[-1])

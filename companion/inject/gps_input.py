@@ -445,7 +445,8 @@ def _replace_sent(rec: GpsInputRecord) -> GpsInputRecord:
 
 
 def _invalid(s: FusedState, c: InjectConfig, check_alt: bool = True) -> str:
-    """Why a fused state cannot be stood behind ("" when it can); check_alt False: its altitude is not sent."""
+    """Why a fused state cannot be stood behind ("" when it can); check_alt False: its altitude and vertical
+    velocity are not sent, so neither is judged."""
     if not _finite(s.lat_deg, s.lon_deg, s.alt_msl_m):
         return "non-finite position"
     if not (-90.0 <= s.lat_deg <= 90.0 and -180.0 <= s.lon_deg <= 180.0):
@@ -456,7 +457,8 @@ def _invalid(s: FusedState, c: InjectConfig, check_alt: bool = True) -> str:
         return "altitude out of range"
     if not _finite(s.vel_n_mps, s.vel_e_mps, s.vel_d_mps):
         return "non-finite velocity"
-    if math.sqrt(s.vel_n_mps**2 + s.vel_e_mps**2 + s.vel_d_mps**2) > c.max_speed_mps:
+    vd = s.vel_d_mps if check_alt else 0.0  # an ignored vertical channel is not judged
+    if math.sqrt(s.vel_n_mps**2 + s.vel_e_mps**2 + vd**2) > c.max_speed_mps:
         return f"speed above {c.max_speed_mps:g} m/s"
     if not (_finite(s.sigma_h_m, s.sigma_v_m) and s.sigma_h_m > 0 and s.sigma_v_m > 0):
         return "no valid covariance"
