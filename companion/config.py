@@ -30,7 +30,10 @@ DEFAULT_STREAMS_HZ: dict[str, float] = {
     "SYSTEM_TIME": 1.0,
 }
 #: Messages SET_MESSAGE_INTERVAL may be asked for (what the decoder understands).
-STREAMABLE = ("GPS_RAW_INT", "GPS2_RAW", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "ATTITUDE", "SYSTEM_TIME")
+STREAMABLE = ("GPS_RAW_INT", "GPS2_RAW", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "ATTITUDE", "SYSTEM_TIME",
+              "GLOBAL_POSITION_INT")
+#: requested as well when gravity aiding is on: the autopilot's barometric altitude, the navigator's vertical aid
+GRAVITY_STREAMS_HZ = {"GLOBAL_POSITION_INT": 5.0}
 
 
 @dataclass(frozen=True)
@@ -234,6 +237,9 @@ def _validate(cfg: Config) -> Config:
     if not cfg.record.segment_s >= 0:
         raise ConfigError("record.segment_s must be >= 0 (0: one file)")
     _validate_gravity(cfg.gravity)
+    if cfg.gravity.map and any(n not in cfg.streams.rates_hz for n in GRAVITY_STREAMS_HZ):
+        cfg = dataclasses.replace(cfg, streams=dataclasses.replace(
+            cfg.streams, rates_hz={**GRAVITY_STREAMS_HZ, **cfg.streams.rates_hz}))
     return cfg
 
 

@@ -192,6 +192,16 @@ class PositionFix(Event):
     topic: ClassVar[str] = "/input/position_fix"
 
 
+@dataclass(frozen=True, slots=True)
+class AutopilotAltitude(Event):
+    """The autopilot's own altitude estimate (MAVLink GLOBAL_POSITION_INT.alt, metres MSL). On ArduPilot it is the
+    EKF height, barometric by default (EK3_SRC1_POSZ = 1), so it survives a GNSS loss: the Navigator's vertical aid
+    when the receiver is gone (an INS alone is unstable in height)."""
+
+    alt_msl_m: float
+    topic: ClassVar[str] = "/input/altitude"
+
+
 #: Every event type, for schema registration and tests.
 EVENT_TYPES: tuple[type[Event], ...] = (
     ImuSample,
@@ -203,4 +213,5 @@ EVENT_TYPES: tuple[type[Event], ...] = (
     Heartbeat,
     GravitySample,
     PositionFix,
+    AutopilotAltitude,
 )

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, ClassVar
 
 import numpy as np
@@ -33,11 +33,15 @@ from companion.sources.gravity import GravityReading, Placement, SimulatedGravim
 
 
 def gravity_nav_config(**overrides) -> NavigatorConfig:
-    """Navigator settings for gravity-aided runs: GNSS weighted by the receiver's own accuracy and no KNN
-    predictor. Measured on the synthetic chain (tests/test_gravity_e2e.py flight, Viterbi n=9): with the default
+    """Navigator settings for gravity-aided runs: GNSS weighted by the receiver's own accuracy, no KNN
+    predictor, and the autopilot's (barometric) altitude as the vertical aid once GNSS is gone (a free INS height
+    diverges exponentially: 775 km after 72 min in a 3 h live run without it).
+
+    Measured on the synthetic chain (tests/test_gravity_e2e.py flight, Viterbi n=9): with the default
     'short_term' GNSS model (0.3 m) the filter leaves the cut overconfident, the matcher fixes then drag the INS
     and the matcher follows the dragged track (fix error 12 -> 360 m in 85 s) instead of 13 m mean error."""
-    return NavigatorConfig(**{"gnss_sigma_model": "accuracy", "fuse_predictor": False, **overrides})
+    return NavigatorConfig(**{"gnss_sigma_model": "accuracy", "fuse_predictor": False, "fuse_autopilot_alt": True,
+                              **overrides})
 
 
 class GnssDenial:
@@ -193,12 +197,14 @@ class GravityMatchStage:
     feed_spacing_m: None feeds every reading; a distance averages the readings along each stretch of that length of
     the navigator track (airborne gravimetry is low-pass filtered; the matchers' designs take one sample per cell)
     and feeds the mean reading at the mean time and position. acceptance: see `FixAcceptance` (None: every fix).
+    navigator_prior: a Viterbi matcher's first state gets a Gaussian prior of the navigator's own horizontal sigma
+    (ours, not the paper's uniform B_1: without it a smooth map lets the path jump to a look-alike tens of km away).
     """
 
     def __init__(self, lmap: LocalGravityMap, matcher: Matcher, placement: Placement | None = None,
                  sigma_floor_m: float | None = None, source: str | None = None, *, geographic: bool = False,
                  feed_spacing_m: float | None = None, acceptance: FixAcceptance | None = None,
-                 sigma_mgal: float | None = None) -> None:
+                 sigma_mgal: float | None = None, navigator_prior: bool = True) -> None:
         if geographic and lmap.frame is None:
             raise ValueError("geographic matching needs a geographic map")
         if feed_spacing_m is not None and not feed_spacing_m > 0:
@@ -213,11 +219,12 @@ class GravityMatchStage:
         self.feed_spacing_m = feed_spacing_m
         self.acceptance = acceptance
         cfg = getattr(matcher, "cfg", None) or getattr(matcher, "config", None)
+        self.navigator_prior = bool(navigator_prior) and hasattr(getattr(matcher, "cfg", None), "prior_sigma_m")
         self.sigma_mgal = float(sigma_mgal if sigma_mgal is not None else getattr(cfg, "sigma_z_mgal", 1.0))
         self._frame: LocalFrame | None = None
         self._prev: FusedState | None = None
         self._pending: deque[GravityReading] = deque()
-        self._acc: list[np.ndarray] = []  # readings of the current stretch: (t, n, e, vn, ve, g, sigma) in map NE
+        self._acc: list[np.ndarray] = []  # readings of the current stretch: (t, n, e, vn, ve, g, sigma_g, sigma_h) map NE
         self._acc_dist_m = 0.0  # track length of the stretch, from the last reading of the previous one
         self._acc_last: np.ndarray | None = None
         self._fed: deque[np.ndarray] = deque(maxlen=max(2, int(getattr(matcher, "window_len", 2))))
@@ -267,7 +274,8 @@ class GravityMatchStage:
         xa, xb = self._map_sample(a), self._map_sample(b)
         w = (r.t_s - a.t_s) / (b.t_s - a.t_s) if b.t_s > a.t_s else 1.0
         x = xa + w * (xb - xa)
-        sample = np.array([r.t_s, x[0], x[1], x[2], x[3], r.gravity_mgal, self.sigma_mgal])
+        sig_h = a.sigma_h_m + w * (b.sigma_h_m - a.sigma_h_m)
+        sample = np.array([r.t_s, x[0], x[1], x[2], x[3], r.gravity_mgal, self.sigma_mgal, sig_h])
         if self.feed_spacing_m is None:
             return self._feed(sample)
         if self._acc_last is not None:
@@ -284,6 +292,11 @@ class GravityMatchStage:
     def _feed(self, x: np.ndarray) -> list[Event]:
         self.n_fed += 1
         self._fed.append(x)
+        if self.navigator_prior and len(self._fed) == self._fed.maxlen:
+            # the navigator's own uncertainty at the window's first sample is the prior of the first state
+            # (RVBMP-2i+prior in BENCHMARKS.md; floored at half a cell so the lattice can still move)
+            cfg = self.matcher.cfg
+            self.matcher.cfg = replace(cfg, prior_sigma_m=float(max(self._fed[0][7], 0.5 * self.cell_m)))
         m = self.matcher.feed(float(x[0]), x[1:3], x[3:5], float(x[5]))
         if m is None:
             return []
@@ -319,6 +332,7 @@ class GravityMatchStage:
         return {"matcher": self.matcher.name, "readings_fed": str(self.n_fed), "fixes": str(self.n_fixes),
                 "failed": str(self.n_failed), "rejected": str(self.n_rejected), "sigma_floor_m": f"{self.sigma_floor_m:g}",
                 "cell_m": f"{self.cell_m:g}", "feed_spacing_m": str(self.feed_spacing_m), "placement": where,
+                "navigator_prior": str(self.navigator_prior),
                 "acceptance": (f"min_track_cells={acc.min_track_cells:g} min_signal_ratio={acc.min_signal_ratio:g}"
                                if acc else "none")}
 

@@ -50,6 +50,12 @@ def test_named_value_float_becomes_gravity_reading_on_the_vehicle_clock():
     # time_boot_ms 0: placed by receive time after the last boot time (11.0 s at receive 1.0 s)
     (r3,) = dec.decode(_msgs(mav.MAVLink_named_value_float_message(0, b"GRAV", 3.0))[0], 1.5)
     assert r3.t_s == pytest.approx(11.5)
+    # the autopilot's (barometric) altitude: GLOBAL_POSITION_INT.alt in mm MSL
+    from companion.events import AutopilotAltitude
+    from companion.sim.mavlink_out import global_position_int
+
+    (a,) = dec.decode(_msgs(global_position_int(12.0, -40.0, 156.0, 301.25, 0.0, (150.0, 0.0, 0.0), 0.0))[0], 2.0)
+    assert isinstance(a, AutopilotAltitude) and a.t_s == pytest.approx(12.0) and a.alt_msl_m == pytest.approx(301.25)
     # without a gravity decoder the message is ignored
     plain = MavlinkDecoder()
     plain.decode(_msgs(mav.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3))[0], 0.0)
@@ -76,7 +82,10 @@ class _Recording(Matcher):
     name = "recording"
 
     def __init__(self, lmap, answer_ne, sigma_m=400.0):
+        from companion.matching.viterbi import ViterbiConfig
+
         super().__init__(lmap, min_len=3, window_len=3, fix_every=3)
+        self.cfg = ViterbiConfig()  # as a Viterbi matcher: takes the navigator prior
         self.answer_ne, self.sigma_m, self.fed = np.asarray(answer_ne, float), sigma_m, []
 
     def feed(self, t_s, ins_ne_m, ins_vel_ne_mps, gravity_mgal):
@@ -149,6 +158,8 @@ def test_geographic_stage_uses_lat_lon_averages_readings_and_gates_fixes(accept)
         assert all("sigma 0.21" in r.reason for r in recs)  # 1 mGal readings, ~21 averaged per sample
     # the window of the first fix: fed samples 1..3, two stretches of ~3.15 km
     assert recs[0].track_m == pytest.approx(np.hypot(*np.diff(fed[:3, 1:3], axis=0).T).sum())
+    # the navigator's sigma_h (5 m here) became the prior of the window's first state, floored at half a cell
+    assert stage.navigator_prior and matcher.cfg.prior_sigma_m == pytest.approx(0.5 * stage.cell_m)
     assert 6000.0 < recs[0].track_m < 6500.0
 
 
@@ -159,8 +170,12 @@ def test_gravity_settings_are_checked_at_start(tmp_path):
     cfg = load_config(None, {**base, "gravity.map": str(grid), "gravity.named_value": "GRAVX"})
     assert cfg.gravity.map == str(grid) and cfg.gravity.named_value == "GRAVX" and cfg.gravity.matcher == "viterbi"
     assert cfg.as_flat_dict()["gravity.sigma_mgal"] == "1.0"
-    nav = load_config(None, {**base, "gravity.map": str(grid), "navigator.uere_h_m": 2.0}).nav_config()
+    g_cfg = load_config(None, {**base, "gravity.map": str(grid), "navigator.uere_h_m": 2.0})
+    nav = g_cfg.nav_config()
     assert nav.gnss_sigma_model == "accuracy" and nav.fuse_predictor is False and nav.uere_h_m == 2.0
+    assert nav.fuse_autopilot_alt  # vertical aid from the autopilot's altitude ...
+    assert g_cfg.streams.rates_hz["GLOBAL_POSITION_INT"] == 5.0  # ... which is requested
+    assert "GLOBAL_POSITION_INT" not in load_config(None, base).streams.rates_hz
     for over, text in [({"gravity.map": str(tmp_path / "missing.nc")}, "is not a file"),
                        ({"gravity.map": str(grid), "gravity.matcher": "tercom"}, "gravity.matcher"),
                        ({"gravity.map": str(grid), "gravity.named_value": "ELEVENCHARS"}, "1-10 characters"),
@@ -183,3 +198,35 @@ def test_navigator_settings_section():
                        ({"navigator.gnss_sigma_model": "magic"}, "gnss_sigma_model")]:
         with pytest.raises(ConfigError, match=text):
             load_config(None, {**base, **over})
+
+
+def test_live_companion_matches_simulated_gravimeter_and_fuses_fixes(tmp_path):
+    """HIL: `companion sim` flies a 12-minute aircraft cruise over the real Tasman grid sending NAMED_VALUE_FLOAT GRAV;
+    the real `companion run --gravity-map` decodes the readings, matches them, fuses accepted fixes and injects."""
+    import json
+
+    from companion.record import iter_payloads, summarize
+    from tests.conftest import SHARED, require
+    from tests.test_hil import Sim, run_companion
+
+    tasman = require(SHARED / "data" / "gravity" / "tasman_grav_west_145E-160E.nc")
+    sim = Sim(tmp_path, "--profile", "cruise", "--hours", 0.2, "--cruise-speed", 150, "--line-km", 60,
+              "--spacing-km", 10, "--gravity-map", tasman, "--sensors", "aircraft", "--speed", 40, "--seed", 3)
+    out = tmp_path / "c.mcap"
+    comp = run_companion(sim.port, out, "--inject", "inject", "--gravity-map", tasman,
+                         "--set", "inject.max_speed_mps=400", "--set", "navigator.fuse_attitude_yaw=true")
+    recs = sim.finish(timeout=120)
+    comp.send_signal(15)  # SIGTERM: the service's stop
+    stdout, err = comp.communicate(timeout=120)
+    assert "Traceback" not in err, err
+    topics = {t.topic: t.count for t in summarize(out).topics}
+    assert 700 <= topics["/input/gravity"] <= 725  # 1 Hz over the 720 s flight, none lost
+    matches = [json.loads(p) for _t, _ns, p in iter_payloads(out, "/gravity/match")]
+    accepted = [m for m in matches if m["accepted"]]
+    assert len(matches) >= 3 and accepted
+    assert all(m["track_m"] >= 2 * 2000.0 for m in accepted)  # >= 2 map cells (~2.9 km here) of track
+    assert topics["/input/position_fix"] == len(accepted)
+    assert any(b'"position_fix"' in p for _t, _ns, p in iter_payloads(out, "/estimation/update"))
+    assert "fixes fused" in stdout
+    gi = [r for r in recs if r["event"] == "gps_input" and "err_h_m" in r]
+    assert len(gi) > 5000 and np.median([r["err_h_m"] for r in gi]) < 5.0  # GNSS on throughout: metre level

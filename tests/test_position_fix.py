@@ -49,3 +49,35 @@ def test_position_fixes_bound_the_error_after_gnss_cut_and_gate_rejects_outlier(
     assert len(bad) == 1 and not bad[0].accepted and bad[0].innovation[0] > 4000.0
     assert sum(u.accepted for u in ups) >= len(ups) - 3
     assert any(o.measurement == "position_fix" for o in out if isinstance(o, FusedState))
+
+
+def _verr(sim, out, t_from):
+    fused = [o for o in out if isinstance(o, FusedState) and o.t_s >= t_from]
+    t = np.array([o.t_s for o in fused])
+    d = np.array([sim.frame.to_ned_m(o.lat_deg, o.lon_deg, o.alt_msl_m)[2] for o in fused])
+    return np.abs(d - np.interp(t, sim.truth_t_s, sim.truth_pos_ned_m[:, 2]))
+
+
+def test_autopilot_altitude_holds_the_height_once_gnss_is_gone():
+    """GLOBAL_POSITION_INT's (barometric) altitude, 7 m off the GNSS datum: the offset is learnt while GNSS aids
+    and the offset-corrected altitude holds the INS height after the cut (without it the height drifts)."""
+    from companion.estimation.integrator import NavigatorConfig
+    from companion.events import AutopilotAltitude
+
+    noise = SimNoise(accel_bias_mps2=(0.08, -0.06, 0.15), gyro_bias_radps=(0.004, -0.003, 0.002))
+    sim = simulate_flight(150.0, np.random.default_rng(5), noise=noise)
+    t0 = sim.events[0].t_s
+    events = [e for e in sim.events if not (isinstance(e, GnssFix) and e.t_s > t0 + CUT_S)]
+    rng = np.random.default_rng(11)
+    ta = np.arange(0.0, 150.0, 0.2)
+    alts = [AutopilotAltitude(float(t0 + t), float(sim.frame.ref_alt_m - np.interp(t0 + t, sim.truth_t_s,
+                              sim.truth_pos_ned_m[:, 2]) + 7.0 + rng.normal(0, 0.5))) for t in ta]
+    cfg = NavigatorConfig(fuse_autopilot_alt=True)
+    free = _verr(sim, run_navigator(events + alts), t0 + CUT_S)  # default: the altitude is not used
+    out = run_navigator(events + alts, cfg)
+    held = _verr(sim, out, t0 + CUT_S)
+    assert free[-1] > 50.0, free[-1]
+    assert held.max() < 5.0, held.max()  # offset learnt (7 m), noise 0.5 m, sigma 3 m
+    ups = [o for o in out if isinstance(o, MeasurementUpdate) and o.kind == "altitude"]
+    assert ups and min(u.t_s for u in ups) > t0 + CUT_S  # fused only after the cut
+    assert sum(u.accepted for u in ups) > 0.95 * len(ups)

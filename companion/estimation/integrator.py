@@ -55,11 +55,12 @@ from companion.estimation.outputs import (
     ModeChange,
     PredictorPoint,
 )
-from companion.events import Attitude, Event, GnssFix, ImuSample, PositionFix
+from companion.events import Attitude, AutopilotAltitude, Event, GnssFix, ImuSample, PositionFix
 from companion.geodesy import LocalFrame, radii_m
 
 CHI2_3DOF_999 = 16.266  # 99.9 % quantile of chi-square with 3 degrees of freedom
 CHI2_2DOF_999 = 13.816  # 99.9 % quantile of chi-square with 2 degrees of freedom
+CHI2_1DOF_999 = 10.828  # 99.9 % quantile of chi-square with 1 degree of freedom
 
 
 @dataclass(frozen=True)
@@ -167,6 +168,14 @@ class NavigatorConfig:
     yaw_align_min_deg: float = 15.0
     yaw_align_sigma_rad: float = 0.1
     att_fuse_interval_s: float = 0.0
+    # vertical aid from the autopilot's altitude (AutopilotAltitude, GLOBAL_POSITION_INT; barometric on ArduPilot):
+    # while GNSS positions arrive, only the offset between that altitude and ours is learnt (datum, baro bias; time
+    # constant alt_offset_tau_s); once none has been fused for alt_gnss_gap_s, the offset-corrected altitude is fused
+    # with alt_sigma_m. Off by default (a short blockage does not need it); gravity_nav_config turns it on.
+    fuse_autopilot_alt: bool = False
+    alt_sigma_m: float = 3.0
+    alt_gnss_gap_s: float = 2.0
+    alt_offset_tau_s: float = 60.0
     hold_prior: bool = False
     hold_prior_min_age_s: float = 1.5
     hold_prior_max_lag_s: int = 60
@@ -209,6 +218,8 @@ class Navigator:
         self._tick_dt = 1.0 / c.output_rate_hz
         self._next_tick: int | None = None
         self._last_fix_t: float | None = None
+        self._alt_off: float | None = None  # autopilot altitude minus ours, learnt while GNSS aids
+        self._alt_off_t = -math.inf
         self._n_pred_fused = 0
         self._pred_anchor: float | None = None
         self._reject_since: float | None = None
@@ -286,6 +297,9 @@ class Navigator:
                 self._on_fix(ev)
         elif isinstance(ev, PositionFix):
             self._on_position_fix(ev)
+        elif isinstance(ev, AutopilotAltitude):
+            if self.config.fuse_autopilot_alt:
+                self._on_altitude(ev)
         elif isinstance(ev, Attitude):
             self._att = ev
             if self.config.ahrs_check:
@@ -424,6 +438,30 @@ class Navigator:
             self.predictor.add_fix(t, z, sh, sv, None if vel is None or not math.isfinite(vel[2]) else vel)
         if self._next_tick is None:
             self._next_tick = math.floor(t / self._tick_dt) + 1
+
+    def _on_altitude(self, ev: AutopilotAltitude) -> None:
+        """The autopilot's altitude: learn its offset from ours while GNSS aids, fuse it (1-dof gate) once GNSS is gone."""
+        if self.mode != "ins" or self.frame is None or not math.isfinite(ev.alt_msl_m):
+            return
+        c, t = self.config, ev.t_s
+        self._ins_predict(max(t, self._kf_t))
+        down = float(self._ins_state_at(t, delay_s=0.0)[0][2])
+        alt_ins = self._ref[2] - down
+        if self._last_fix_t is not None and t - self._last_fix_t <= c.alt_gnss_gap_s:
+            off = ev.alt_msl_m - alt_ins
+            if self._alt_off is None:
+                self._alt_off = off
+            else:
+                self._alt_off += (off - self._alt_off) * min(1.0, max(0.0, t - self._alt_off_t) / c.alt_offset_tau_s)
+            self._alt_off_t = t
+            return
+        if self._alt_off is None:
+            return  # never seen beside GNSS: its datum is unknown
+        H = np.zeros((1, 15))
+        H[0, 2] = 1.0
+        y = np.array([(self._ref[2] - (ev.alt_msl_m - self._alt_off)) - down])
+        if self._ins_apply(H, y, np.array([[c.alt_sigma_m**2]]), "altitude", t, gate_chi2=CHI2_1DOF_999):
+            self._used.add("altitude")
 
     def _on_position_fix(self, ev: PositionFix) -> None:
         """A non-GNSS horizontal position measurement (e.g. a gravity-matching fix) at its own epoch.
@@ -893,7 +931,7 @@ class Navigator:
             P = self._kin.P
         diag = tuple(float(v) for v in np.diag(P))
         lat, lon, alt = self._from_ned(n, e, d)
-        used = "+".join(sorted(self._used, key=("gnss", "predictor", "position_fix").index)) or "none"
+        used = "+".join(sorted(self._used, key=("gnss", "predictor", "position_fix", "altitude").index)) or "none"
         self._out.append(
             FusedState(
                 tg, lat, lon, alt, n, e, d, *vel, *rpy, diag,

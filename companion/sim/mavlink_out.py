@@ -47,7 +47,10 @@ _GUIDED_MODES = {3, 4, 6, 7, 9, 11, 21}
 
 #: sort order of messages with the same boot time (ArduPilot's stream order is not specified; ours is fixed)
 _ORDER = {"HEARTBEAT": 0, "SYSTEM_TIME": 1, "STATUSTEXT": 2, "RAW_IMU": 3, "SCALED_IMU2": 4, "ATTITUDE": 5, "GPS_RAW_INT": 6,
-          "NAMED_VALUE_FLOAT": 7}
+          "NAMED_VALUE_FLOAT": 7, "GLOBAL_POSITION_INT": 8}
+#: the autopilot's barometric height error (Gauss-Markov): what GLOBAL_POSITION_INT.alt carries beside the truth
+BARO_SIGMA_M = 1.0
+BARO_TAU_S = 300.0
 
 
 # ---------------------------------------------------------------------------------------------
@@ -160,6 +163,26 @@ def attitude(boot_s: float, euler_rad, rates_frd_radps):
     return mavlink2.MAVLink_attitude_message(units.ms_from_s(boot_s), r, p, y, wr, wp, wy)
 
 
+def global_position_int(boot_s: float, lat_deg: float, lon_deg: float, alt_msl_m: float, home_alt_m: float,
+                        vel_ned_mps, yaw_rad: float):
+    """The autopilot's fused position (ArduPilot: EKF; its height barometric)."""
+    vn, ve, vd = (units.cm_from_m(float(v)) for v in vel_ned_mps)
+    hdg = units.cdeg_from_deg(math.degrees(yaw_rad) % 360.0) % 36000
+    return mavlink2.MAVLink_global_position_int_message(
+        units.ms_from_s(boot_s), units.degE7_from_deg(lat_deg), units.degE7_from_deg(lon_deg),
+        units.mm_from_m(alt_msl_m), units.mm_from_m(alt_msl_m - home_alt_m), vn, ve, vd, hdg)
+
+
+def baro_error_m(flight) -> np.ndarray:
+    """Barometric height error at the ATTITUDE times (seeded by the flight's seed; the same for every time window)."""
+    from companion.sim.sensors import gauss_markov
+
+    ta = flight.truth_attitude.t_s
+    dt = float(ta[1] - ta[0]) if len(ta) > 1 else 1.0
+    rng = np.random.default_rng([int(flight.seed), 0xBA20])
+    return gauss_markov(len(ta), dt, BARO_SIGMA_M, BARO_TAU_S, rng).reshape(-1)
+
+
 def statustext(severity: int, text: str):
     raw = text.encode("ascii")
     if len(raw) > 50:
@@ -205,10 +228,14 @@ def telemetry_messages(
     gravity: tuple[np.ndarray, np.ndarray] | None = None,
     gravity_name: str = "GRAV",
     t_range: tuple[float, float] | None = None,
+    global_position: bool = False,
+    baro_err_m: np.ndarray | None = None,
 ) -> list[Outgoing]:
     """Every message of a simulated flight sent in ``t_range`` (default: all), ordered by send time (boot time).
 
     ``gravity``: (boot times s, values mGal) of gravimeter readings, sent as NAMED_VALUE_FLOAT ``gravity_name``.
+    ``global_position``: also GLOBAL_POSITION_INT at the ATTITUDE times (truth position, barometric height error
+    ``baro_err_m`` from :func:`baro_error_m`, computed here when not given).
     """
     out: list[Outgoing] = []
     end_s = flight.duration_s
@@ -258,6 +285,14 @@ def telemetry_messages(
                 ),
             )
         )
+    if global_position:
+        tr = flight.truth_attitude
+        berr = baro_error_m(flight) if baro_err_m is None else baro_err_m
+        home = float(tr.alt_msl_m[0])
+        for k in _window(ta, t_range):
+            out.append(Outgoing(units.us_from_s(ta[k]), global_position_int(
+                ta[k], float(tr.lat_deg[k]), float(tr.lon_deg[k]), float(tr.alt_msl_m[k] + berr[k]), home,
+                tr.vel_ned_mps[k], float(flight.attitude_euler_rad[k, 2]))))
     if gravity is not None:
         tg, vg = gravity
         for k in _window(tg, t_range):

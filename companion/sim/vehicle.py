@@ -48,7 +48,8 @@ _EPOCH_US = 1e15
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 #: streams an ArduPilot sends whatever was requested
 _ALWAYS = ("HEARTBEAT", "STATUSTEXT", "NAMED_VALUE_FLOAT")
-_STREAMED = ("SYSTEM_TIME", "GPS_RAW_INT", "GPS2_RAW", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "ATTITUDE")
+_STREAMED = ("SYSTEM_TIME", "GPS_RAW_INT", "GPS2_RAW", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "ATTITUDE",
+             "GLOBAL_POSITION_INT")
 
 
 @dataclass
@@ -159,13 +160,15 @@ def playback_from_flight(flight=None, *, gravity: tuple[np.ndarray, np.ndarray] 
     ``lazy`` (default: flights over 10 minutes) frames the messages ``chunk_s`` of playback time at a time.
     """
     from companion.sim.flight import sample_flight
-    from companion.sim.mavlink_out import telemetry_messages
+    from companion.sim.mavlink_out import baro_error_m, telemetry_messages
 
     flight = flight or sample_flight()
+    berr = baro_error_m(flight)  # GLOBAL_POSITION_INT (sent only when requested: streams="requested")
 
     def build(t0: float, t1: float) -> list[Item]:
         msgs = telemetry_messages(flight, gcs=True, gravity=gravity, gravity_name=gravity_name,
-                                  t_range=None if (t0, t1) == (-math.inf, math.inf) else (t0, t1))
+                                  t_range=None if (t0, t1) == (-math.inf, math.inf) else (t0, t1),
+                                  global_position=True, baro_err_m=berr)
         return [Item(o.boot_us * 1e-6, o.msg, (o.src_system, o.src_component)) for o in msgs]
 
     if lazy is None:

@@ -18,6 +18,7 @@ from collections import Counter
 from companion import units
 from companion.events import (
     Attitude,
+    AutopilotAltitude,
     Event,
     FixType,
     GnssFix,
@@ -45,6 +46,7 @@ WANTED_TYPES = (
     "ATTITUDE",
     "SYSTEM_TIME",
     "STATUSTEXT",
+    "GLOBAL_POSITION_INT",
 )
 
 _IMU_INDEX = {"RAW_IMU": 0, "SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
@@ -225,6 +227,11 @@ class MavlinkDecoder:
         text = msg.text if isinstance(msg.text, str) else msg.text.decode("ascii", "replace")
         out.append(StatusText(t_s=t_s, severity=int(msg.severity), text=text.rstrip("\x00")))
 
+    def _global_position(self, msg, recv_s: float, out: list[Event]) -> None:
+        t_s = self._stamp(units.s_from_ms(msg.time_boot_ms), recv_s, out)
+        if t_s is not None:
+            out.append(AutopilotAltitude(t_s=t_s, alt_msl_m=units.m_from_mm(msg.alt)))
+
     def _named_value(self, msg, recv_s: float, out: list[Event]) -> None:
         """A gravimeter's NAMED_VALUE_FLOAT -> GravityReading on the vehicle clock (time_boot_ms; 0: receive time)."""
         v = self.gravity.value(msg)
@@ -245,4 +252,5 @@ _HANDLERS = {
     "ATTITUDE": MavlinkDecoder._attitude,
     "SYSTEM_TIME": MavlinkDecoder._system_time,
     "STATUSTEXT": MavlinkDecoder._statustext,
+    "GLOBAL_POSITION_INT": MavlinkDecoder._global_position,
 }
