@@ -7,6 +7,11 @@ slows to a stop and descends (or, at sea level, holds). The trajectory model is 
 :mod:`companion.sim.trajectory` (the attitude follows the specific force), which is all the companion's
 position pipeline needs. Long cruises use a coarse pre-integration grid (``internal_rate_hz``).
 
+Cruises fly over a rotating WGS84 ellipsoid by default (``earth="ellipsoid"``, see :mod:`companion.sim.trajectory`):
+over hundreds of kilometres and hours the flat-Earth model's missing Earth rate (15 deg/h), Coriolis
+(0.02 m/s^2 at 150 m/s), normal-gravity variation and tangent-plane longitude (~4 % over 3 deg of latitude) would
+be errors of the simulated physics, not of the navigator under test.
+
 Presets: ``AIRCRAFT`` (150 m/s at 300 m) and ``SHIP`` (8 m/s at 0 m); unpack them into ``cruise_profile``.
 """
 
@@ -91,12 +96,15 @@ def cruise_profile(
     max_accel_mps2: float | None = None,
     climb_rate_mps: float = 5.0,
     internal_rate_hz: float = CRUISE_INTERNAL_RATE_HZ,
+    earth: str = "ellipsoid",
 ) -> FlightProfile:
     """A lawn-mower survey of about ``hours`` (total profile duration) starting at rest at ``origin``.
 
     The first line runs from the origin along ``heading_deg``; following lines lie ``spacing_km`` to its right.
     The flight stays in the box of ``line_km`` x (lines - 1) ``spacing_km`` (fly-by turns cut the corners
     inside it). Modes: STABILIZE on the ground, AUTO for the survey, LAND (or LOITER at sea level) at the end.
+    ``earth``: "ellipsoid" (default; rotating WGS84 Earth, truth lat/lon integrated on the ellipsoid) or "flat".
+    The lines, spacing and box are laid out in the profile's local-level metres (``pos_ned_m``).
     """
     if not hours > 0:
         raise ValueError("hours must be positive")
@@ -130,7 +138,8 @@ def cruise_profile(
             wps, start_ne_m=(0.0, 0.0), start_heading_deg=heading_deg, speed_mps=speed_mps, turn_radius_m=radius,
             max_accel_mps2=accel, turn_blend_s=4.0,
         )
-        profile = FlightProfile(head + legs + tail, origin, start_heading_deg=heading_deg, internal_rate_hz=internal_rate_hz)
+        profile = FlightProfile(head + legs + tail, origin, start_heading_deg=heading_deg, internal_rate_hz=internal_rate_hz,
+                                earth=earth)
         err_s = target_s - profile.duration_s
         if abs(err_s) < 1.0 or distance <= min_distance:
             break

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.geodesy import LocalFrame
+from companion.geodesy import LocalFrame, radii_m
 from companion.sim.trajectory import Trajectory
 
 #: Earth magnetic field near Canberra, NED, in milligauss (1 uT = 10 mGauss).
@@ -67,12 +67,16 @@ class ImuData:
 
 
 def simulate_imu(traj: Trajectory, model: ImuModel, rng: np.random.Generator) -> ImuData:
-    """IMU samples at the trajectory's times: truth + constant bias + white noise."""
+    """IMU samples at the trajectory's times: truth + constant bias + white noise.
+
+    The truth is the trajectory's specific force and inertial rate (with the Earth's rotation, transport rate,
+    Coriolis and normal gravity for an ``earth="ellipsoid"`` profile); the magnetometer sees the attitude in NED.
+    """
     n = len(traj)
     acc_bias = rng.normal(0.0, model.accel_bias_sigma_mps2, 3)
     gyr_bias = rng.normal(0.0, model.gyro_bias_sigma_radps, 3)
     acc = traj.specific_force_frd_mps2 + acc_bias + rng.normal(0.0, 1.0, (n, 3)) * model.accel_noise_mps2
-    gyr = traj.rate_frd_radps + gyr_bias + rng.normal(0.0, 1.0, (n, 3)) * model.gyro_noise_radps
+    gyr = traj.gyro_truth_frd_radps + gyr_bias + rng.normal(0.0, 1.0, (n, 3)) * model.gyro_noise_radps
     field_ned = np.asarray(model.mag_field_ned_mgauss, dtype=float)
     mag = np.einsum("nji,j->ni", traj.c_nb, field_ned) + rng.normal(0.0, 1.0, (n, 3)) * model.mag_noise_mgauss
     return ImuData(traj.t_s, acc, gyr, mag, acc_bias, gyr_bias, model.temperature_c)
@@ -133,15 +137,21 @@ class GnssData:
 
 
 def simulate_gnss(traj: Trajectory, frame: LocalFrame, model: GnssModel, rng: np.random.Generator) -> GnssData:
-    """GNSS solutions at the trajectory's (uniform) times."""
+    """GNSS solutions at the trajectory's (uniform) times.
+
+    The position error (metres NED) is added to the truth: through ``frame``'s tangent-plane mapping for a flat-Earth
+    trajectory, to the truth lat/lon/alt with the ellipsoid's local radii for an ``earth="ellipsoid"`` one.
+    """
     n = len(traj)
     dt = float(traj.t_s[1] - traj.t_s[0]) if n > 1 else 1.0
     err = np.empty((n, 3))
     err[:, :2] = gauss_markov(n, dt, model.horiz_sigma_m, model.tau_s, rng, 2)
     err[:, 2:] = gauss_markov(n, dt, model.vert_sigma_m, model.tau_s, rng, 1)
     err += rng.normal(0.0, 1.0, (n, 3)) * model.white_m
-    pos = traj.pos_ned_m + err
-    lat, lon, alt = frame.to_geodetic(pos)
+    if traj.earth == "ellipsoid":
+        lat, lon, alt = offset_geodetic(traj.lat_deg, traj.lon_deg, traj.alt_msl_m, err)
+    else:
+        lat, lon, alt = frame.to_geodetic(traj.pos_ned_m + err)
     vel = traj.vel_ned_mps + rng.normal(0.0, 1.0, (n, 3)) * model.vel_sigma_mps
     dop_wander = gauss_markov(n, dt, 0.08, 40.0, rng, 1)[:, 0]
     hdop = np.round(model.hdop_mean + dop_wander, 2)
@@ -168,6 +178,17 @@ def simulate_gnss(traj: Trajectory, frame: LocalFrame, model: GnssModel, rng: np
     return GnssData(traj.t_s, fix, lat, lon, alt, vel, hdop, vdop, h_acc, v_acc, s_acc, sats, alt_ell, err)
 
 
+def offset_geodetic(lat_deg, lon_deg, alt_m, d_ned_m) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Geodetic points moved by small NED offsets (metres), with the WGS84 radii at each point."""
+    lat = np.radians(np.asarray(lat_deg, dtype=float))
+    alt = np.asarray(alt_m, dtype=float)
+    d = np.asarray(d_ned_m, dtype=float)
+    rm, rn = radii_m(lat)
+    lat_out = np.degrees(lat + d[..., 0] / (rm + alt))
+    lon_out = np.asarray(lon_deg, dtype=float) + np.degrees(d[..., 1] / ((rn + alt) * np.cos(lat)))
+    return lat_out, (lon_out + 180.0) % 360.0 - 180.0, alt - d[..., 2]
+
+
 @dataclass(frozen=True)
 class AttitudeEstimateModel:
     roll_pitch_sigma_rad: float = math.radians(0.2)
@@ -177,7 +198,9 @@ class AttitudeEstimateModel:
 
 
 def simulate_attitude_estimate(traj: Trajectory, model: AttitudeEstimateModel, rng: np.random.Generator):
-    """(euler_rad (N,3), body rates (N,3)): the autopilot's estimate = truth + slowly varying error."""
+    """(euler_rad (N,3), body rates (N,3)): the autopilot's estimate = truth + slowly varying error.
+
+    Attitude and rates relative to the local NED frame (as ATTITUDE reports them), on either Earth model."""
     n = len(traj)
     dt = float(traj.t_s[1] - traj.t_s[0]) if n > 1 else 1.0
     err = np.concatenate(

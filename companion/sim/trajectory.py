@@ -18,6 +18,20 @@ f = a - g, and the yaw equals the heading channel psi (the nose points along tra
 ``Yaw`` leg turns the vehicle on the spot). The accelerometer therefore reads (0, 0, -|f|) in body
 FRD (no aerodynamic drag is modelled). Body rates come from the analytic derivative of the Euler
 angles (ZYX convention, rotation body FRD -> NED: C_nb = Rz(yaw) Ry(pitch) Rx(roll)).
+
+Earth model (``FlightProfile(..., earth=...)``):
+
+* ``"flat"`` (default): a flat, non-rotating Earth. lat/lon come from the NED position through the
+  reference frame's tangent-plane mapping, the accelerometer reads f = a - g with constant g = 9.80665 and the
+  gyros the body rate relative to NED. Right for a drone within a few hundred metres for minutes.
+* ``"ellipsoid"``: a rotating WGS84 ellipsoid, the physics a local-level strapdown INS integrates (Groves
+  2013, ch. 5.4; :mod:`companion.estimation.ins`). The analytic NED velocity v and its rate of change a are
+  the velocity in the local-level frame and its rate of change in that frame. The truth position integrates
+  lat' = v_N/(R_M+h), lon' = v_E/((R_N+h) cos lat), h' = -v_D on the pre-integration grid; the
+  accelerometer reads f^n = a - g^n(lat, h) + (2 w_ie + w_en) x v (normal gravity with free-air correction)
+  and the gyros w_ib = w_nb + C_bn (w_ie + w_en). The attitude (multirotor model from the flat a - g), the
+  body rate relative to NED and ``pos_ned_m`` (metres integrated along the path in the local level, not a
+  mapping of lat/lon) are those of the flat model; lat/lon/alt are the truth. For hours-long cruises.
 """
 
 from __future__ import annotations
@@ -28,11 +42,12 @@ from typing import Sequence
 
 import numpy as np
 
-from companion.geodesy import LocalFrame
+from companion.geodesy import EARTH_RATE_RADPS, WGS84_E2, LocalFrame, normal_gravity_mps2, radii_m
 
 GRAVITY_MPS2 = 9.80665
 G_NED_MPS2 = np.array([0.0, 0.0, GRAVITY_MPS2])
 _INTERNAL_RATE_HZ = 2000.0
+EARTH_MODELS = ("flat", "ellipsoid")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -207,12 +222,16 @@ class Trajectory:
     jerk_ned_mps3: np.ndarray
     euler_rad: np.ndarray  # roll, pitch, yaw (ZYX)
     euler_rate_radps: np.ndarray
-    rate_frd_radps: np.ndarray
-    specific_force_frd_mps2: np.ndarray
+    rate_frd_radps: np.ndarray  # body rate relative to the local NED frame (w_nb^b)
+    specific_force_frd_mps2: np.ndarray  # what a perfect accelerometer reads
     lat_deg: np.ndarray
     lon_deg: np.ndarray
     alt_msl_m: np.ndarray
     mode: list[str | None] = field(default_factory=list)
+    #: what a perfect gyro reads (w_ib^b); None: the same as ``rate_frd_radps`` (flat, non-rotating Earth)
+    rate_ib_frd_radps: np.ndarray | None = None
+    #: the profile's Earth model, "flat" or "ellipsoid" (see the module docstring)
+    earth: str = "flat"
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -222,12 +241,19 @@ class Trajectory:
         """Rotation matrices body FRD -> NED, shape (N, 3, 3)."""
         return dcm_from_euler(self.euler_rad)
 
+    @property
+    def gyro_truth_frd_radps(self) -> np.ndarray:
+        """Angular rate a perfect gyro reads: w_ib^b (ellipsoid) or the body rate relative to NED (flat)."""
+        return self.rate_frd_radps if self.rate_ib_frd_radps is None else self.rate_ib_frd_radps
+
     def slice(self, sel) -> Trajectory:
         kw = {}
         for name in self.__dataclass_fields__:
             v = getattr(self, name)
             if name == "mode":
                 kw[name] = list(np.asarray(v, dtype=object)[sel]) if v else []
+            elif v is None or isinstance(v, str):
+                kw[name] = v
             else:
                 kw[name] = v[sel]
         return Trajectory(**kw)
@@ -261,6 +287,8 @@ class FlightProfile:
 
     ``sample(t_s)`` evaluates it at any times (position from a pre-integrated grid, 2 kHz unless
     ``internal_rate_hz`` says otherwise; everything else analytic); ``sample_rate(rate_hz)`` samples it uniformly from 0 to ``duration_s``.
+    ``earth``: "flat" (default) or "ellipsoid" (rotating WGS84 Earth; see the module docstring). With "ellipsoid"
+    the returned lat/lon/alt are the truth and ``pos_ned_m`` stays the local-level metres of the flat model.
     """
 
     def __init__(
@@ -271,9 +299,13 @@ class FlightProfile:
         start_ned_m: Sequence[float] = (0.0, 0.0, 0.0),
         start_heading_deg: float = 0.0,
         internal_rate_hz: float = _INTERNAL_RATE_HZ,
+        earth: str = "flat",
     ) -> None:
         if not internal_rate_hz > 0.0:
             raise ValueError("internal_rate_hz must be positive")
+        if earth not in EARTH_MODELS:
+            raise ValueError(f"earth must be one of {EARTH_MODELS}, not {earth!r}")
+        self.earth = earth
         #: rate of the horizontal-position pre-integration grid; the Hermite rule is 4th order, so smooth
         #: long flights (hours of cruise) keep sub-millimetre accuracy at 20-50 Hz with 1/100 of the memory
         self.internal_rate_hz = float(internal_rate_hz)
@@ -374,6 +406,78 @@ class FlightProfile:
         pos = np.zeros((n, 2))
         pos[1:] = np.cumsum(steps, axis=0)
         self._grid_pos = pos
+        if self.earth == "ellipsoid":
+            self._integrate_geodetic(tg, vel, acc, pos)
+
+    def _height_m(self, ivd):
+        """Height (the datum of the frame's ref_alt_m) from the integral of the climb channel; exact."""
+        return self.frame.ref_alt_m - (self.start_ned_m[2] + ivd)
+
+    def _geodetic_rates(self, lat, h, vel, acc):
+        """(lat', d/dt lat', lon', d/dt lon') along the trajectory on the ellipsoid (rad/s, rad/s^2)."""
+        rm, rn = radii_m(lat)
+        sl, cl = np.sin(lat), np.cos(lat)
+        k = WGS84_E2 * sl * cl / (1.0 - WGS84_E2 * sl * sl)
+        drm, drn = 3.0 * rm * k, rn * k  # dR/dlat
+        hd = -vel[:, 2]
+        rmh, rnh = rm + h, rn + h
+        lat_d = vel[:, 0] / rmh
+        lat_dd = acc[:, 0] / rmh - vel[:, 0] * (drm * lat_d + hd) / rmh**2
+        den = rnh * cl
+        den_d = (drn * lat_d + hd) * cl - rnh * sl * lat_d
+        lon_d = vel[:, 1] / den
+        lon_dd = acc[:, 1] / den - vel[:, 1] * den_d / den**2
+        return lat_d, lat_dd, lon_d, lon_dd
+
+    def _integrate_geodetic(self, tg, vel, acc, pos_ne) -> None:
+        """Truth lat/lon on the grid: the 4th-order Hermite rule as for the horizontal position.
+
+        lat' depends on lat only through the radii, so the implicit rule is solved by fixed-point iteration
+        from the flat-Earth solution (each pass shrinks the error by ~e^2 * dlat; converges in 2-4 passes).
+        """
+        h = self._grid_dt
+        _, _, _, _, _, _, _, _, _, ivd = self._channels(tg)
+        height = self._height_m(ivd)
+        lat0_deg, lon0_deg, _ = self.frame.to_geodetic(self.start_ned_m)
+        lat0, lon0 = math.radians(float(lat0_deg)), math.radians(float(lon0_deg))
+        rm0, _ = radii_m(lat0)
+        lat = lat0 + pos_ne[:, 0] / (float(rm0) + height)
+        for _ in range(10):
+            lat_d, lat_dd, _, _ = self._geodetic_rates(lat, height, vel, acc)
+            new = np.empty_like(lat)
+            new[0] = lat0
+            new[1:] = lat0 + np.cumsum(h / 2.0 * (lat_d[:-1] + lat_d[1:]) + h * h / 12.0 * (lat_dd[:-1] - lat_dd[1:]))
+            change = float(np.max(np.abs(new - lat)))
+            lat = new
+            if change < 1e-14:
+                break
+        lat_d, _, lon_d, lon_dd = self._geodetic_rates(lat, height, vel, acc)
+        lon = np.empty_like(lat)
+        lon[0] = lon0
+        lon[1:] = lon0 + np.cumsum(h / 2.0 * (lon_d[:-1] + lon_d[1:]) + h * h / 12.0 * (lon_dd[:-1] - lon_dd[1:]))
+        self._grid_geo = np.stack([lat, lon], axis=-1)
+        self._grid_geo_rate = np.stack([lat_d, lon_d], axis=-1)
+
+    def _geodetic_position(self, t, height, vel) -> tuple[np.ndarray, np.ndarray]:
+        """Truth (lat, lon) in rad at ``t`` (ellipsoid): cubic Hermite of the grid with the exact rates at the nodes."""
+        h = self._grid_dt
+        last = len(self._grid_geo) - 1
+        tg = np.clip(t, 0.0, last * h)
+        k = np.minimum((tg / h).astype(np.int64), last - 1)
+        u = ((tg - k * h) / h)[:, None]
+        h00 = 2 * u**3 - 3 * u**2 + 1
+        h10 = u**3 - 2 * u**2 + u
+        h01 = -2 * u**3 + 3 * u**2
+        h11 = u**3 - u**2
+        g, gd = self._grid_geo, self._grid_geo_rate
+        geo = h00 * g[k] + h10 * h * gd[k] + h01 * g[k + 1] + h11 * h * gd[k + 1]
+        # outside [0, duration]: constant velocity (at rest for a complete flight plan)
+        dt = t - tg
+        if np.any(dt != 0.0):
+            rm, rn = radii_m(geo[:, 0])
+            geo[:, 0] += dt * vel[:, 0] / (rm + height)
+            geo[:, 1] += dt * vel[:, 1] / ((rn + height) * np.cos(geo[:, 0]))
+        return geo[:, 0], geo[:, 1]
 
     def _horizontal_position(self, t, vel) -> np.ndarray:
         """Cubic Hermite interpolation of the integrated grid, with the analytic velocity at the nodes."""
@@ -420,7 +524,15 @@ class FlightProfile:
         pos[:, 2] = ivd
         pos += self.start_ned_m
         euler, euler_rate, rate_frd, f_frd = attitude_from_motion(acc, jerk, psi, w)
-        lat, lon, alt = self.frame.to_geodetic(pos)
+        rate_ib = None
+        if self.earth == "flat":
+            lat, lon, alt = self.frame.to_geodetic(pos)
+        else:
+            alt = self._height_m(ivd)
+            lat_rad, lon_rad = self._geodetic_position(t, alt, vel)
+            f_frd, rate_ib = rotating_earth_imu(euler, rate_frd, vel, acc, lat_rad, alt)
+            lat = np.degrees(lat_rad)
+            lon = (np.degrees(lon_rad) + 180.0) % 360.0 - 180.0
         return Trajectory(
             t_s=t,
             pos_ned_m=pos,
@@ -435,6 +547,8 @@ class FlightProfile:
             lon_deg=np.asarray(lon),
             alt_msl_m=np.asarray(alt),
             mode=self.modes_at(t),
+            rate_ib_frd_radps=rate_ib,
+            earth=self.earth,
         )
 
     def sample_rate(self, rate_hz: float, t_end_s: float | None = None) -> Trajectory:
@@ -483,6 +597,34 @@ def attitude_from_motion(acc_ned, jerk_ned, yaw, yaw_rate):
     rate = np.stack([p, q, r], axis=-1)
     f_frd = np.einsum("nji,nj->ni", dcm_from_euler(euler), f)  # C_bn f = C_nb^T f
     return euler, euler_rate, rate, f_frd
+
+
+def earth_rates_ned_radps(lat_rad, height_m, vel_ned_mps) -> tuple[np.ndarray, np.ndarray]:
+    """(w_ie^n, w_en^n), shape (N, 3) each: Earth rate and transport rate in NED (Groves 2013, eqs. 2.123, 5.44)."""
+    lat = np.asarray(lat_rad, dtype=float)
+    v = np.asarray(vel_ned_mps, dtype=float)
+    rm, rn = radii_m(lat)
+    cl, sl = np.cos(lat), np.sin(lat)
+    w_ie = EARTH_RATE_RADPS * np.stack([cl, np.zeros_like(lat), -sl], axis=-1)
+    rnh = rn + height_m
+    w_en = np.stack([v[:, 1] / rnh, -v[:, 0] / (rm + height_m), -v[:, 1] * sl / cl / rnh], axis=-1)
+    return w_ie, w_en
+
+
+def rotating_earth_imu(euler_rad, rate_nb_frd_radps, vel_ned_mps, acc_ned_mps2, lat_rad, height_m):
+    """(specific force FRD, inertial angular rate FRD) on the rotating WGS84 Earth for a given attitude and motion.
+
+    f^n = a^n - g^n(lat, h) + (2 w_ie + w_en) x v^n (Groves 2013, eq. 5.54 solved for f) with normal gravity
+    (:func:`companion.geodesy.normal_gravity_mps2`, as the INS uses), and w_ib^b = w_nb^b + C_bn (w_ie + w_en).
+    """
+    c_nb = dcm_from_euler(euler_rad)
+    v = np.asarray(vel_ned_mps, dtype=float)
+    w_ie, w_en = earth_rates_ned_radps(lat_rad, height_m, v)
+    f_ned = np.asarray(acc_ned_mps2, dtype=float) + np.cross(2.0 * w_ie + w_en, v)
+    f_ned[:, 2] -= normal_gravity_mps2(lat_rad, height_m)
+    f_frd = np.einsum("nji,nj->ni", c_nb, f_ned)
+    rate_ib = np.asarray(rate_nb_frd_radps, dtype=float) + np.einsum("nji,nj->ni", c_nb, w_ie + w_en)
+    return f_frd, rate_ib
 
 
 # ---------------------------------------------------------------------------------------------
