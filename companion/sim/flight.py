@@ -3,6 +3,10 @@
 Trajectory time t = 0 is the autopilot's boot; every sensor stream is sampled on its own uniform grid
 k / rate. Randomness: one seed, split with ``numpy.random.SeedSequence.spawn`` so each sensor has its own
 stream (changing one model does not reshuffle the others).
+
+The Earth model is the profile's (``FlightProfile(earth=...)``): with "ellipsoid" (cruises) the truth lat/lon, the
+GNSS positions and the IMU (Earth rate, transport rate, Coriolis, normal gravity) are those of a rotating WGS84 Earth;
+the ATTITUDE estimate and the magnetometer stay relative to local NED on either model.
 """
 
 from __future__ import annotations
