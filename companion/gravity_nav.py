@@ -297,6 +297,7 @@ class GravityMatchStage:
             # (RVBMP-2i+prior in BENCHMARKS.md; floored at half a cell so the lattice can still move)
             cfg = self.matcher.cfg
             self.matcher.cfg = replace(cfg, prior_sigma_m=float(max(self._fed[0][7], 0.5 * self.cell_m)))
+            self.matcher.name = self.matcher.cfg.name
         m = self.matcher.feed(float(x[0]), x[1:3], x[3:5], float(x[5]))
         if m is None:
             return []

@@ -83,7 +83,8 @@ def run_once(a, variant: str, work: Path) -> dict:
     grav = next((line for line in out.splitlines() if line.startswith("gravity ")), "")
     lat = next((line for line in out.splitlines() if line.startswith("latency ")), "")
     print(f"{variant}: {len(gi)} GPS_INPUT with truth, {wall:.0f} s wall; {grav}", flush=True)
-    return {"t_s": np.array([r["state_play_s"] for r in gi]), "err_m": np.array([r["err_h_m"] for r in gi]),
+    end_s = next((r["play_s"] for r in recs if r["event"] == "end"), float("nan"))
+    return {"end_s": end_s, "t_s": np.array([r["state_play_s"] for r in gi]), "err_m": np.array([r["err_h_m"] for r in gi]),
             "fix_type": np.array([r["fix_type"] for r in gi]), "h_acc_m": np.array([r["h_acc_m"] for r in gi]),
             "gravity": grav, "latency": lat, "wall_s": wall}
 
@@ -127,9 +128,12 @@ def main(argv=None) -> int:
         for h0 in np.arange(cut, end, 3600.0):
             w = (r["t_s"] >= h0) & (r["t_s"] < h0 + 3600.0)
             hours.append(f"{np.mean(r['err_m'][w]):.0f}" if w.any() else "-")
+        ft = r["fix_type"][sel]
+        types = ", ".join(f"{k}: {np.mean(ft == k):.0%}" for k in sorted(set(ft.tolist())))
         summary.append([name, f"{np.median(before):.1f}" if before.size else "-", f"{np.mean(e):.0f}",
                         f"{np.percentile(e, 95):.0f}", f"{np.max(e):.0f}", " / ".join(hours),
-                        f"{np.mean(r['h_acc_m'][sel]):.0f}"])
+                        f"{np.mean(r['h_acc_m'][sel]):.0f}", f"{np.mean(e <= r['h_acc_m'][sel]):.0%}", types,
+                        f"{sel.sum()}", f"{(r['t_s'][-1] - cut) / 60:.0f} of {(r['end_s'] - cut) / 60:.0f}"])
     cmd = (f"nice -n 5 .venv/bin/python -m replay.gravity2.live_long --hours {a.hours:g} --speed-up {a.speed_up:g} "
            f"--cruise-speed {a.cruise_speed:g} --origin {a.origin} --line-km {a.line_km:g} --spacing-km {a.spacing_km:g} "
            f"--gnss-off-s {a.gnss_off_s:g} --sigma-mgal {a.sigma_mgal:g} --seed {a.seed} --sensors {a.sensors}")
@@ -151,7 +155,14 @@ def main(argv=None) -> int:
         "Horizontal error of the injected positions (m):",
         "",
         md_table(["run", "median before the cut", "mean after the cut", "p95 after", "max after",
-                  "mean per hour of denial", "mean reported h_acc after (m)"], summary),
+                  "mean per hour of denial", "mean reported h_acc after (m)", "error <= h_acc", "fix_type sent after",
+                  "GPS_INPUT after the cut", "last GPS_INPUT, min after the cut"], summary),
+        "",
+        "The injector stops sending when the fused state fails its plausibility checks (e.g. a horizontal speed above "
+        "inject.max_speed_mps = 400 m/s once an INS has diverged): see the last column. "
+        "fix_type follows the reported accuracy with the default [inject] bounds (3D <= 10 m, 2D <= 50 m, else 1 = no "
+        "fix): km-level gravity fixes go out as fix_type 1 with an honest h_acc; an operator who wants the autopilot "
+        "to use them raises inject.max_h_acc_2d_m.",
         "",
         "Error at 10-minute marks after the cut (m):",
         "",
@@ -159,7 +170,8 @@ def main(argv=None) -> int:
         "",
         f"- aided: {runs['aided']['gravity'].removeprefix('gravity').strip()}",
         f"- INS: {runs['ins']['gravity'].removeprefix('gravity').strip()}",
-        f"- {runs['aided']['latency'].removeprefix('latency').strip()} (aided run, wall clock at x{a.speed_up:g})",
+        f"- wall-clock latency at x{a.speed_up:g} playback, aided run (not the real-time figure, which is in live.md): "
+        f"{runs['aided']['latency'].removeprefix('latency').strip()}",
         "",
         f"![error over time](gravity_live_{a.sensors}_error.png)",
     ])
