@@ -147,8 +147,9 @@ def main(argv=None) -> int:
         f"{a.sensors} sensors (companion.sim.flight.SENSOR_SETS; navigator settings "
         f"{NAV_SETTINGS[a.sensors] or 'defaults'}); IMU "
         f"{a.imu_hz:g} Hz, GNSS {a.gnss_hz:g} Hz until {a.gnss_off_s:g} s, then cut to the end; gravimeter 1 Hz "
-        f"NAMED_VALUE_FLOAT, map value at the truth + N(0, {a.sigma_mgal:g} mGal). `companion run` (Viterbi RVBMP-2i, "
-        "readings averaged per map cell of track, fix acceptance on) injects GPS_INPUT; the simulator scores every "
+        f"NAMED_VALUE_FLOAT, map value at the truth + N(0, {a.sigma_mgal:g} mGal). `companion run` (Viterbi RVBMP-2i "
+        "with the navigator's own sigma as the prior, readings averaged per map cell of track, fix acceptance on, "
+        "barometric altitude from GLOBAL_POSITION_INT as the vertical aid) injects GPS_INPUT; the simulator scores every "
         f"GPS_INPUT against its truth. Played at x{a.speed_up:g}; wall time aided {runs['aided']['wall_s']:.0f} s, "
         f"INS {runs['ins']['wall_s']:.0f} s.",
         "",
