@@ -108,10 +108,12 @@ def main(argv=None) -> int:
     ap.add_argument("--imu-hz", type=float, default=25.0)
     ap.add_argument("--gnss-hz", type=float, default=5.0)
     ap.add_argument("--sensors", choices=tuple(NAV_SETTINGS), default="aircraft", help="simulated sensor set")
+    ap.add_argument("--name", default=None, help="results file stem suffix (default: the sensor set)")
     ap.add_argument("--map", default=str(MAP))
     ap.add_argument("--work", default="out/gravity_live")
     ap.add_argument("--no-write", action="store_true", help="print only (no results file, no plot)")
     a = ap.parse_args(argv)
+    a.name = a.name or a.sensors
     work = Path(a.work)
     work.mkdir(parents=True, exist_ok=True)
     runs = {v: run_once(a, v, work) for v in ("aided", "ins")}
@@ -136,13 +138,15 @@ def main(argv=None) -> int:
                         f"{sel.sum()}", f"{(r['t_s'][-1] - cut) / 60:.0f} of {(r['end_s'] - cut) / 60:.0f}"])
     cmd = (f"nice -n 5 .venv/bin/python -m replay.gravity2.live_long --hours {a.hours:g} --speed-up {a.speed_up:g} "
            f"--cruise-speed {a.cruise_speed:g} --origin {a.origin} --line-km {a.line_km:g} --spacing-km {a.spacing_km:g} "
-           f"--gnss-off-s {a.gnss_off_s:g} --sigma-mgal {a.sigma_mgal:g} --seed {a.seed} --sensors {a.sensors}")
+           f"--gnss-off-s {a.gnss_off_s:g} --sigma-mgal {a.sigma_mgal:g} --seed {a.seed} --sensors {a.sensors}"
+           + (f" --name {a.name}" if a.name != a.sensors else ""))
     text = "\n".join([
-        f"# Gravity-aided flight through a long GNSS denial, live (`companion sim` + `companion run`), {a.sensors} sensors",
+        f"# Gravity-aided {'voyage' if a.cruise_speed < 30 else 'flight'} through a long GNSS denial, live "
+        f"(`companion sim` + `companion run`), {a.cruise_speed:g} m/s, {a.sensors} sensors",
         "",
         f"`{cmd}`",
         "",
-        f"Simulated aircraft: {a.hours:g} h lawn-mower survey at {a.cruise_speed:g} m/s from {a.origin} over the Tasman "
+        f"Simulated {'ship' if a.cruise_speed < 30 else 'aircraft'}: {a.hours:g} h lawn-mower survey at {a.cruise_speed:g} m/s from {a.origin} over the Tasman "
         f"grid (Sandwell & Smith V15.2, ~2.9 km cells), lines {a.line_km:g} km, {a.spacing_km:g} km apart; "
         f"{a.sensors} sensors (companion.sim.flight.SENSOR_SETS; navigator settings "
         f"{NAV_SETTINGS[a.sensors] or 'defaults'}); IMU "
@@ -174,12 +178,12 @@ def main(argv=None) -> int:
         f"- wall-clock latency at x{a.speed_up:g} playback, aided run (not the real-time figure, which is in live.md): "
         f"{runs['aided']['latency'].removeprefix('latency').strip()}",
         "",
-        f"![error over time](gravity_live_{a.sensors}_error.png)",
+        f"![error over time](gravity_live_{a.name}_error.png)",
     ])
     print(text)
     if a.no_write:
         return 0
-    (RESULTS / f"gravity_live_{a.sensors}.md").write_text(text + "\n")
+    (RESULTS / f"gravity_live_{a.name}.md").write_text(text + "\n")
     import matplotlib
 
     matplotlib.use("Agg")
@@ -194,9 +198,9 @@ def main(argv=None) -> int:
     ax.set_yscale("log")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
-    ax.set_title(f"companion run, live GPS_INPUT: {a.hours:g} h cruise at {a.cruise_speed:g} m/s, {a.sensors} sensors")
+    ax.set_title(f"companion run, live GPS_INPUT: {a.hours:g} h survey at {a.cruise_speed:g} m/s, {a.sensors} sensors")
     fig.tight_layout()
-    fig.savefig(RESULTS / f"gravity_live_{a.sensors}_error.png", dpi=110)
+    fig.savefig(RESULTS / f"gravity_live_{a.name}_error.png", dpi=110)
     return 0
 
 
