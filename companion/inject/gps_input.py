@@ -352,7 +352,8 @@ class Injector:
         self._last_state_t = s.t_s
         if self._last_out_t is not None and s.t_s - self._last_out_t < 1.0 / c.rate_hz - 1e-6:
             return out  # rate limit: not a fault, not recorded
-        why = _invalid(s, c, check_alt=not self._alt_ignored(s))
+        alt_ignored = self._alt_ignored(s)
+        why = _invalid(s, c, check_alt=not alt_ignored)
         if why:
             return out + self._drop(s.t_s, why)
         if s.t_s < self._newest_input_t - c.max_lag_s:
@@ -360,7 +361,7 @@ class Injector:
         why = self._cross_check(s)
         if why:
             return out + self._drop(s.t_s, why)
-        rec = self._record(s)
+        rec = self._record(s, alt_ignored)
         self._last_out_t = s.t_s
         self.built += 1
         self.fix_types[rec.fix_type] += 1
@@ -396,12 +397,12 @@ class Injector:
     def _alt_ignored(self, s: FusedState) -> bool:
         return not (_finite(s.sigma_v_m) and max(s.sigma_v_m, self._floor_v_m) <= self.config.max_v_acc_alt_m)
 
-    def _record(self, s: FusedState) -> GpsInputRecord:
+    def _record(self, s: FusedState, alt_ignored: bool) -> GpsInputRecord:
         c = self.config
         sh, sv = max(s.sigma_h_m, self._floor_h_m), max(s.sigma_v_m, self._floor_v_m)
         alt, vd = s.alt_msl_m, s.vel_d_mps
         flags = 0
-        if self._alt_ignored(s):
+        if alt_ignored:
             flags |= IGNORE_ALT | IGNORE_VEL_VERT | IGNORE_VERTICAL_ACCURACY
             alt, vd = (self._last_alt_m if self._last_alt_m is not None else 0.0), 0.0
         else:

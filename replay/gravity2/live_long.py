@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import signal
 import socket
 import subprocess
@@ -24,12 +23,11 @@ from pathlib import Path
 
 import numpy as np
 
+from companion.matching.data import TASMAN, shared_gravity_dir
+from replay.gravity2.common import RESULTS_DIR as RESULTS
 from replay.gravity2.common import md_table
 
-REPO = Path(__file__).resolve().parents[2]
-SHARED = Path(__import__("os").environ.get("COMPANION_SHARED", REPO / ".." / "shared"))
-MAP = SHARED / "data" / "gravity" / "tasman_grav_west_145E-160E.nc"
-RESULTS = REPO / "replay" / "results"
+MAP = shared_gravity_dir() / TASMAN
 CLI = [sys.executable, "-m", "companion.cli"]
 #: companion-side [navigator] settings matching the simulator's sensor set (companion.sim.flight.SENSOR_SETS):
 #: the defaults describe a multicopter's MEMS IMU and AHRS; an aircraft's tactical IMU and navigation-grade
