@@ -114,7 +114,9 @@ def test_unit_file_verifies_and_is_hardened(tmp_path):
     repo = Path(__file__).resolve().parents[1]
     unit = (repo / "systemd" / "companion.service").read_text()
     for directive in ("Type=notify", "WatchdogSec=", "Restart=on-failure", "User=companion", "SupplementaryGroups=dialout",
-                      "NoNewPrivileges=yes", "ProtectSystem=strict", "ReadWritePaths=/var/lib/companion", "PrivateTmp=yes"):
+                      "NoNewPrivileges=yes", "ProtectSystem=strict", "ReadWritePaths=/var/lib/companion", "PrivateTmp=yes",
+                      "After=network-online.target", "Wants=network-online.target", "SystemCallFilter=@system-service",
+                      "DeviceAllow=char-ttyTHS rw"):
         assert directive in unit, directive
     exe = Path(sys.executable).parent / "companion"
     if shutil.which("systemd-analyze") is None:
