@@ -67,7 +67,7 @@ class Wire:
 
 def test_encode_decode_round_trip_through_wire():
     wire = Wire()
-    inj = Injector(InjectConfig(mode="inject", gps_id=1), sender=wire)
+    inj = Injector(InjectConfig(mode="inject", gps_id=1, activate="always"), sender=wire)
     inj.process(SystemTime(t_s=5.0, unix_time_s=calendar.timegm((2025, 3, 15, 1, 30, 0))))
     recs = inj.process(state())
     assert len(recs) == 1 and recs[0].sent and len(wire.msgs) == 1
@@ -107,7 +107,7 @@ def test_yaw_when_enabled_north_is_36000():
     [(1.0, 2.0, FixType.FIX_3D), (12.0, 2.0, FixType.FIX_2D), (2.0, 25.0, FixType.FIX_2D), (60.0, 5.0, FixType.NO_FIX)],
 )
 def test_fix_type_follows_covariance_bounds(sigma_h, sigma_v, expect):
-    inj = Injector(InjectConfig(mode="shadow", max_h_acc_3d_m=10, max_v_acc_3d_m=20, max_h_acc_2d_m=50))
+    inj = Injector(InjectConfig(mode="shadow", activate="always", max_h_acc_3d_m=10, max_v_acc_3d_m=20, max_h_acc_2d_m=50))
     (rec,) = inj.process(state(sigma_h=sigma_h, sigma_v=sigma_v))
     assert rec.fix_type == expect and not rec.sent and rec.mode == "shadow"
     assert rec.h_acc_m == sigma_h and rec.v_acc_m == sigma_v  # accuracies are the filter's, not constants
@@ -325,3 +325,26 @@ def test_a_corrupt_clock_or_field_never_stops_the_injector():
     assert isinstance(bad, InjectorDrop) and bad.reason.startswith("not encodable")
     (rec,) = tick(inj, state(t_s=10.4))
     assert rec.sent and len(wire.msgs) == 2
+
+
+def test_backup_claims_a_fix_in_an_outage_only_with_an_aid_the_autopilot_lacks():
+    """Beside a real receiver that stays primary (GPS_AUTO_SWITCH = 4), the default: while the receiver is healthy every
+    state goes out with its fix (the instance passes arming); in an outage the INS alone is no better than ArduPilot's
+    own dead reckoning, so it goes out as no fix until a matcher fix aids it, and again once that aid is too old."""
+    inj = Injector(InjectConfig(mode="shadow", aid_valid_s=60.0))
+    assert inj.config.activate == "backup"
+    inj.process(fix(9.95))
+    (rec,) = tick(inj, state(t_s=10.0))
+    assert rec.fix_type == FixType.FIX_3D
+    inj.process(fix(10.1, fix_type=1))  # the receiver loses its fix
+    (rec,) = tick(inj, state(t_s=10.3, sigma_h=2.0))
+    assert rec.fix_type == FixType.NO_FIX and rec.satellites == 0 and "dead-reckons alone" in rec.fix_reason
+    (rec,) = tick(inj, state(t_s=11.0, sigma_h=2.0, measurement="position_fix"))
+    assert rec.fix_type == FixType.FIX_3D
+    (rec,) = tick(inj, state(t_s=50.0, sigma_h=4.0, measurement="none"))  # aided 39 s ago: still within 60 s
+    assert rec.fix_type == FixType.FIX_3D
+    (rec,) = tick(inj, state(t_s=72.0, sigma_h=4.0, measurement="none"))
+    assert rec.fix_type == FixType.NO_FIX
+    inj.process(fix(72.1))  # the receiver is back: the state follows it again with its fix
+    (rec,) = tick(inj, state(t_s=72.2, sigma_h=1.0, measurement="gnss"))
+    assert rec.fix_type == FixType.FIX_3D

@@ -66,14 +66,22 @@ IGNORE_HORIZONTAL_ACCURACY = 64
 IGNORE_VERTICAL_ACCURACY = 128
 
 MODES = ("off", "shadow", "inject")
-ACTIVATIONS = ("always", "gnss_loss")
+ACTIVATIONS = ("backup", "always", "gnss_loss")
 
 
 @dataclass(frozen=True)
 class InjectConfig:
     mode: str = "shadow"  # off | shadow (compute and record only) | inject (send)
     gps_id: int = 1  # GPS instance fed: 0 with GPS1_TYPE = 14, 1 with GPS2_TYPE = 14
-    activate: str = "always"  # always | gnss_loss
+    # backup: beside a real receiver that stays in charge while healthy (ArduPilot GPS_AUTO_SWITCH = 4, the receiver
+    # primary): every state is sent, so this GPS instance is ready and passes arming; while the receiver has no 3D fix
+    # a state keeps its fix type only if it was aided within ``aid_valid_s`` by information the autopilot lacks
+    # (``outage_aids``), else it goes out as no fix and ArduPilot dead-reckons exactly as it would alone.
+    # always: every valid state with its covariance's fix type (the companion as the GPS the EKF follows).
+    # gnss_loss: only while the receiver has no 3D fix (ArduPilot refuses to arm: GPSn without a 3D fix).
+    activate: str = "backup"
+    outage_aids: str = "position_fix"  # '+'-separated FusedState.measurement names that count as aid in an outage
+    aid_valid_s: float = 300.0  # an aid keeps the fix type this long (the covariance grows and degrades it meanwhile)
     rate_hz: float = 10.0  # at most this many GPS_INPUT per second of vehicle time (>= 5 when injecting)
     max_h_acc_3d_m: float = 10.0  # 3D fix only while sigma_h is within this ...
     max_v_acc_3d_m: float = 20.0  # ... and sigma_v within this
@@ -247,10 +255,13 @@ class Injector:
         self._gnss_time: tuple[float, int, float] | None = None  # (t_s, week, tow_s) of the receiver
         self._last_state_t: float | None = None
         self._last_out_t: float | None = None
-        self._last_good_gnss_t: float | None = None
+        self._last_good_gnss_t: float | None = None  # the receiver's last 3D fix, and its last message without one
+        self._last_bad_gnss_t: float | None = None
         self._last_gnss_t: float | None = None
         self._healthy_since: float | None = None
-        self._active = self.config.activate == "always"
+        self._active = self.config.activate != "gnss_loss"
+        self._aids = frozenset(a for a in self.config.outage_aids.split("+") if a)
+        self._last_aid_t: float | None = None
         self._floor_h_m = 0.0
         self._floor_v_m = 0.0
         self._last_alt_m: float | None = None  # last altitude sent with sigma_v within max_v_acc_alt_m
@@ -323,6 +334,10 @@ class Injector:
         if good:
             h = fix.h_acc_m if fix.h_acc_m is not None else (fix.hdop * c.uere_m if fix.hdop is not None else c.uere_m)
             self._rx_fix = (fix.t_s, fix.lat_deg, fix.lon_deg, h if _finite(h) and h > 0 else c.uere_m)
+        if good:
+            self._last_good_gnss_t = fix.t_s
+        else:
+            self._last_bad_gnss_t = fix.t_s
         if not good:
             self._healthy_since = None
             return self._set_active(fix.t_s, True, f"receiver fix_type {fix.fix_type}")
@@ -333,7 +348,7 @@ class Injector:
         return []
 
     def _set_active(self, t_s: float, active: bool, reason: str) -> list[Event]:
-        if self.config.activate == "always" or active == self._active:
+        if self.config.activate != "gnss_loss" or active == self._active:
             return []
         self._active = active
         return [InjectorState(t_s, active, reason)]
@@ -343,9 +358,16 @@ class Injector:
         self.dropped[reason] += 1
         return [InjectorDrop(t_s, reason)]
 
+    def _receiver_out(self, t_s: float) -> bool:
+        """The real receiver has no 3D fix now: its last one is older than gnss_timeout_s, or a no-fix came after it."""
+        good, bad = self._last_good_gnss_t, self._last_bad_gnss_t
+        return good is None or t_s - good > self.config.gnss_timeout_s or (bad is not None and bad > good)
+
     def _on_state(self, s: FusedState) -> list[Event]:
         c = self.config
         out: list[Event] = []
+        if self._aids and _finite(s.t_s) and not self._aids.isdisjoint(s.measurement.split("+")):
+            self._last_aid_t = s.t_s
         if (
             c.activate == "gnss_loss"
             and not self._active
@@ -432,6 +454,9 @@ class Injector:
             why = f"sigma_h {sh:.1f} m > {c.max_h_acc_3d_m:g}" if sh > c.max_h_acc_3d_m else f"sigma_v {sv:.1f} m > {c.max_v_acc_3d_m:g}"
         else:
             fix, why = int(FixType.NO_FIX), f"sigma_h {sh:.1f} m > {c.max_h_acc_2d_m:g}"
+        if c.activate == "backup" and fix >= FixType.FIX_2D and self._receiver_out(s.t_s) and not (
+                self._last_aid_t is not None and s.t_s - self._last_aid_t <= c.aid_valid_s):
+            fix, why = int(FixType.NO_FIX), "receiver outage, no aid the autopilot lacks: it dead-reckons alone"
         cov = s.cov_diag
         if len(cov) >= 6 and _finite(cov[3], cov[4]) and min(cov[3], cov[4]) >= 0:
             speed_acc = math.sqrt(max(cov[3], cov[4]))
