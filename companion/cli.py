@@ -43,7 +43,7 @@ def _progress_bar(total: int | None, desc: str, quiet: bool):
 
 async def _drive(source, pipeline, recorder, *, realtime_factor, bar) -> str | None:
     """Run to the end or to a signal. Returns the name of the signal that stopped it, or None."""
-    from companion.pipeline import run_source
+    from companion.pipeline.core import run_source
 
     loop = asyncio.get_running_loop()
     task = asyncio.current_task()
@@ -121,14 +121,14 @@ def _print_summary(source, pipeline, out: Path, stopped_by: str | None, elapsed_
 
 
 def _build_pipeline(recorder, args):
-    from companion.pipeline import build_pipeline
+    from companion.pipeline.core import build_pipeline
 
     if getattr(args, "gravity_map", None) is None:
         if getattr(args, "deny_gnss_after", None) is not None:
             raise UsageError("--deny-gnss-after needs --gravity-map (the gravity-aided replay)")
         return build_pipeline(recorder)
-    from companion.gravity_nav import FixAcceptance, GnssDenial, gravity_stages
-    from companion.matching.maps import LocalGravityMap, MapFormatError, load_grid
+    from companion.gravity.stage import FixAcceptance, GnssDenial, gravity_stages
+    from companion.gravity.maps import LocalGravityMap, MapFormatError, load_grid
 
     if args.deny_gnss_after is None:
         raise UsageError("--gravity-map needs --deny-gnss-after SECONDS")
@@ -151,7 +151,7 @@ def _build_pipeline(recorder, args):
 
 
 def cmd_replay(args) -> int:
-    from companion.pipeline import wall_time_s
+    from companion.pipeline.core import wall_time_s
     from companion.record import Recorder
     from companion.sources import FileSource
 
@@ -200,7 +200,7 @@ def _damaged(source) -> bool:
 def cmd_run(args) -> int:
     """The live companion: settings from --config (TOML) with command-line overrides, then the runtime."""
     from companion.config import ConfigError, load_config, parse_override
-    from companion.pipeline import wall_time_s
+    from companion.pipeline.core import wall_time_s
     from companion.record import Recorder, RotatingRecorder
     from companion.runtime import Runtime
 
@@ -302,7 +302,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--matcher", choices=("viterbi", "knn", "iccp"), default="viterbi", help="gravity matcher (default viterbi)")
     g.add_argument("--gravity-accept-all", action="store_true",
                    help="fuse every matcher fix; by default a fix is fused only if its window saw map signal over >= 2 "
-                        "map cells of track (companion.gravity_nav.FixAcceptance)")
+                        "map cells of track (companion.gravity.stage.FixAcceptance)")
     r.set_defaults(func=cmd_replay)
 
     n = sub.add_parser("run", help="run on a live MAVLink link (the companion service)")

@@ -45,9 +45,9 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from companion import units
-from companion.estimation.outputs import FusedState
+from companion.nav.outputs import FusedState
 from companion.events import Attitude, Event, FixType, GnssFix, ImuSample, Reboot, SystemTime
-from companion.geodesy import LocalFrame
+from companion.nav.frame import LocalFrame
 
 #: GPS time = UTC + leap seconds; GPS epoch 1980-01-06T00:00:00Z as a Unix time.
 GPS_EPOCH_UNIX_S = 315964800

@@ -1,8 +1,8 @@
 """The live companion: one asyncio loop driving the link's events through the shared pipeline.
 
-``Runtime`` wires :class:`~companion.runtime.link.MavlinkLink` -> :func:`companion.pipeline.build_pipeline`
+``Runtime`` wires :class:`~companion.mavlink.link.MavlinkLink` -> :func:`companion.pipeline.core.build_pipeline`
 (the same stages ``companion replay`` uses, plus the GPS_INPUT :class:`~companion.inject.Injector`) ->
-the MCAP recorder. Link events (:class:`~companion.runtime.link.LinkStatus`) are recorded beside the
+the MCAP recorder. Link events (:class:`~companion.mavlink.link.LinkStatus`) are recorded beside the
 pipeline's output and reported to systemd as STATUS; READY is sent once the link manager runs, WATCHDOG
 every half watchdog period while both the loop and the link thread are alive (a hung link thread stops
 the pings and systemd restarts the service).
@@ -24,8 +24,8 @@ from typing import Any
 from companion.config import Config
 from companion.inject.gps_input import GpsInputRecord, Injector
 from companion.notify import Notifier
-from companion.pipeline import Pipeline, build_pipeline
-from companion.runtime.link import Batch, LinkStatus, MavlinkLink
+from companion.pipeline.core import Pipeline, build_pipeline
+from companion.mavlink.link import Batch, LinkStatus, MavlinkLink
 from companion.sources.base import SourceInfo
 
 _STOP = object()
@@ -45,7 +45,7 @@ class Runtime:
         gravity, stages = None, []
         self.gravity_stage = None
         if config.gravity.map:  # gravity-aided: readings from the link, fixes into the navigator
-            from companion.gravity_nav import live_gravity_stage
+            from companion.gravity.stage import live_gravity_stage
             from companion.sources.gravity import NamedValueGravityDecoder
 
             self.gravity_stage = live_gravity_stage(config.gravity)

@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from companion.geodesy import LocalFrame
+from companion.nav.frame import LocalFrame
 from companion.sim.trajectory import BLEND_PEAK, Climb, FlightProfile, Hold, Land, Leg, legs_through_waypoints
 
 #: typical survey settings: an aircraft (a 300 km x 100 km box in 3 h) and a survey ship

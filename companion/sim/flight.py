@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from companion.geodesy import LocalFrame
+from companion.nav.frame import LocalFrame
 from companion.sim.sensors import (
     AttitudeEstimateModel,
     GnssData,

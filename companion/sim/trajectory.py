@@ -25,7 +25,7 @@ Earth model (``FlightProfile(..., earth=...)``):
   reference frame's tangent-plane mapping, the accelerometer reads f = a - g with constant g = 9.80665 and the
   gyros the body rate relative to NED. Right for a drone within a few hundred metres for minutes.
 * ``"ellipsoid"``: a rotating WGS84 ellipsoid, the physics a local-level strapdown INS integrates (Groves
-  2013, ch. 5.4; :mod:`companion.estimation.ins`). The analytic NED velocity v and its rate of change a are
+  2013, ch. 5.4; :mod:`companion.nav.ins`). The analytic NED velocity v and its rate of change a are
   the velocity in the local-level frame and its rate of change in that frame. The truth position integrates
   lat' = v_N/(R_M+h), lon' = v_E/((R_N+h) cos lat), h' = -v_D on the pre-integration grid; the
   accelerometer reads f^n = a - g^n(lat, h) + (2 w_ie + w_en) x v (normal gravity with free-air correction)
@@ -42,7 +42,7 @@ from typing import Sequence
 
 import numpy as np
 
-from companion.geodesy import EARTH_RATE_RADPS, WGS84_E2, LocalFrame, normal_gravity_mps2, radii_m
+from companion.nav.frame import EARTH_RATE_RADPS, WGS84_E2, LocalFrame, normal_gravity_mps2, radii_m
 
 GRAVITY_MPS2 = 9.80665
 G_NED_MPS2 = np.array([0.0, 0.0, GRAVITY_MPS2])
@@ -615,7 +615,7 @@ def rotating_earth_imu(euler_rad, rate_nb_frd_radps, vel_ned_mps, acc_ned_mps2, 
     """(specific force FRD, inertial angular rate FRD) on the rotating WGS84 Earth for a given attitude and motion.
 
     f^n = a^n - g^n(lat, h) + (2 w_ie + w_en) x v^n (Groves 2013, eq. 5.54 solved for f) with normal gravity
-    (:func:`companion.geodesy.normal_gravity_mps2`, as the INS uses), and w_ib^b = w_nb^b + C_bn (w_ie + w_en).
+    (:func:`companion.nav.frame.normal_gravity_mps2`, as the INS uses), and w_ib^b = w_nb^b + C_bn (w_ie + w_en).
     """
     c_nb = dcm_from_euler(euler_rad)
     v = np.asarray(vel_ned_mps, dtype=float)

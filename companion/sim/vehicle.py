@@ -41,7 +41,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from companion import units
-from companion.geodesy import LocalFrame
+from companion.nav.frame import LocalFrame
 from companion.inject.gps_input import decode_gps_input
 
 _EPOCH_US = 1e15
@@ -648,7 +648,7 @@ def _cruise_from_args(args):
 
 def _gravity_from_args(args, profile) -> tuple[np.ndarray, np.ndarray]:
     """``--gravity-map``: readings along the flight; one-line errors for a bad file or a flight off the map."""
-    from companion.matching.maps import LocalGravityMap, MapFormatError, load_grid
+    from companion.gravity.maps import LocalGravityMap, MapFormatError, load_grid
 
     if not 1 <= len(args.gravity_name.encode("ascii", "replace")) <= 10:
         raise ValueError(f"--gravity-name {args.gravity_name!r}: NAMED_VALUE_FLOAT names are 1-10 characters")

@@ -119,7 +119,7 @@ class DataflashReader(LogReader):
         super().__init__(path)
         from pymavlink import DFReader
 
-        from companion.sources.dataflash import WANTED, DataflashDecoder
+        from companion.mavlink.dataflash import WANTED, DataflashDecoder
 
         self._wanted = WANTED
         noise = io.StringIO()  # DFReader prints "bad header" lines on stderr; count them instead
@@ -184,7 +184,7 @@ class TlogReader(LogReader):
         super().__init__(path)
         from pymavlink import mavutil
 
-        from companion.sources.mavlink_decode import WANTED_TYPES, MavlinkDecoder
+        from companion.mavlink.decode import WANTED_TYPES, MavlinkDecoder
 
         try:
             self._log = mavutil.mavlogfile(str(self.path), notimestamps=False)

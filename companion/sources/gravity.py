@@ -24,7 +24,7 @@ from typing import ClassVar
 import numpy as np
 
 from companion.events import Event
-from companion.matching.maps import LocalGravityMap
+from companion.gravity.maps import LocalGravityMap
 from companion.sources.base import Source, SourceError, SourceInfo
 
 DEFAULT_NAMED_VALUE = "GRAV"  # NAMED_VALUE_FLOAT.name is at most 10 characters

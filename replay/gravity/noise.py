@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from companion.matching.data import shared_gravity_dir
+from companion.gravity.data import shared_gravity_dir
 
 R_EARTH_M = 6371000.0
 

@@ -1,0 +1,206 @@
+"""The pipeline: source -> stages -> MCAP record, the same objects for replay and for a live link.
+
+A stage is anything with ``process(event) -> list[outputs]`` and ``finish() -> list[outputs]`` (and
+optionally ``metadata() -> dict[str, str]`` and ``summary_lines() -> list[str]``). Outputs are frozen
+dataclasses with ``t_s`` (and a ``topic``), recorded as they come. Later stages see earlier stages'
+outputs as well as the input events, so a predictor's points can feed the integrator.
+
+Feedback: an output of a later stage (index >= 1) whose type is in ``Pipeline.feedback_types`` (default
+:data:`FEEDBACK_TYPES`: PositionFix, e.g. a gravity-matching fix) is recorded when produced, is *not* passed to
+the stages after its producer in that pass, and is queued; once the current input event has gone through every
+stage, the queue is drained in order, each item running through all stages from stage 0 (the Navigator) like an
+input event (not recorded a second time, not counted in the input stats). Deterministic: the order depends only
+on the event stream. Feedback produced in ``finish()`` is recorded only (the Navigator has already finished).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections import deque
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from companion.events import Event, GnssFix, ImuSample, PositionFix
+from companion.sources.base import Source
+from companion.stats import StreamStats
+
+#: Stage outputs that go back to stage 0 as input events (see the module docstring).
+FEEDBACK_TYPES: tuple[type, ...] = (PositionFix,)
+
+#: Map-panel track of the raw receiver fixes.
+GNSS_MAP_TOPIC = "/map/gnss"
+
+
+class Stage(Protocol):
+    def process(self, item: Any) -> list[Any]: ...
+
+    def finish(self) -> list[Any]: ...
+
+
+class Sink(Protocol):
+    """Where everything goes: the MCAP recorder in practice (companion.record.Recorder)."""
+
+    def write(self, item: Any, topic: str | None = None) -> None: ...
+
+    def write_location(
+        self, topic: str, t_s: float, lat_deg: float, lon_deg: float, alt_m: float, cov_enu_m2=None
+    ) -> None: ...
+
+
+@dataclass
+class Pipeline:
+    stages: list[Stage] = field(default_factory=list)
+    sink: Sink | None = None
+    stats: StreamStats = field(default_factory=StreamStats)
+    outputs: int = 0
+    feedback_types: tuple[type, ...] = FEEDBACK_TYPES
+    _feedback: deque = field(default_factory=deque, repr=False)
+    _finishing: bool = field(default=False, repr=False)
+
+    def process(self, ev: Event) -> None:
+        self.stats.add(ev)
+        self._emit(ev)
+        if isinstance(ev, GnssFix) and ev.has_position and self.sink is not None:
+            self.sink.write_location(
+                f"{GNSS_MAP_TOPIC}{ev.instance if ev.instance else ''}",
+                ev.t_s,
+                ev.lat_deg,
+                ev.lon_deg,
+                ev.alt_msl_m if ev.alt_msl_m is not None else 0.0,
+                cov_enu_m2=_gnss_cov_enu_m2(ev),
+            )
+        self._run_stages([ev], 0)
+        while self._feedback:
+            self._run_stages([self._feedback.popleft()], 0)
+
+    def _run_stages(self, items: Iterable[Any], first: int) -> None:
+        for i in range(first, len(self.stages)):
+            produced = []
+            for item in items:
+                produced += self.stages[i].process(item)
+            for out in produced:
+                self._emit(out)
+            self.outputs += len(produced)
+            if produced and i > 0 and self.feedback_types:
+                fb = [o for o in produced if isinstance(o, self.feedback_types)]
+                if fb:
+                    if not self._finishing:
+                        self._feedback.extend(fb)
+                    produced = [o for o in produced if not isinstance(o, self.feedback_types)]
+            items = list(items) + produced if produced else items
+
+    def _emit(self, item: Any) -> None:
+        if self.sink is not None:
+            self.sink.write(item, _instance_topic(item))
+            track = _MAP_TRACKS.get(type(item).__name__)
+            if track is not None and _finite(item.lat_deg, item.lon_deg, item.alt_msl_m):
+                self.sink.write_location(track, item.t_s, item.lat_deg, item.lon_deg, item.alt_msl_m, cov_enu_m2=_cov_enu(item))
+
+    def finish(self) -> None:
+        self._finishing = True
+        for i, stage in enumerate(self.stages):
+            outs = stage.finish()
+            for out in outs:
+                self._emit(out)
+            self.outputs += len(outs)
+            if i > 0 and self.feedback_types:
+                outs = [o for o in outs if not isinstance(o, self.feedback_types)]  # recorded only
+            if outs:
+                self._run_stages(outs, i + 1)
+
+
+#: Assumed 1-sigma user range error when a receiver gives only DOPs (typical single-frequency u-blox).
+UERE_M = 2.5
+
+
+#: Outputs that also go to Foxglove's Map panel, one LocationFix track each.
+_MAP_TRACKS = {"FusedState": "/map/fused", "PredictorPoint": "/map/predictor"}
+
+
+def _finite(*vals: float) -> bool:
+    return all(v is not None and math.isfinite(v) for v in vals)
+
+
+def _cov_enu(item: Any) -> list[list[float]] | None:
+    """Diagonal ENU covariance from an output's horizontal/vertical sigmas (NED position variances)."""
+    h, v = getattr(item, "sigma_h_m", None), getattr(item, "sigma_v_m", None)
+    if not _finite(h, v):
+        return None
+    return [[h * h, 0.0, 0.0], [0.0, h * h, 0.0], [0.0, 0.0, v * v]]
+
+
+def _instance_topic(item: Any) -> str | None:
+    """Second and third sensors get their own topics (/input/imu1, /input/gnss1) so rates read right."""
+    if isinstance(item, ImuSample) and item.imu_index:
+        return f"{item.topic}{item.imu_index}"
+    if isinstance(item, GnssFix) and item.instance:
+        return f"{item.topic}{item.instance}"
+    return None
+
+
+def build_pipeline(
+    sink: Sink | None,
+    *,
+    navigate: bool = True,
+    nav_config: Any = None,
+    extra_stages: Iterable[Stage] = (),
+) -> Pipeline:
+    """The one pipeline wiring used by replay, the live runtime and the benchmarks.
+
+    source events -> navigator (KNN predictor + INS + Kalman integrator, companion.nav) ->
+    extra stages (e.g. the GPS_INPUT injector, which consumes the navigator's FusedState) -> sink.
+    """
+    stages: list[Stage] = []
+    if navigate:
+        from companion.nav import Navigator
+
+        stages.append(Navigator(nav_config))
+    stages += list(extra_stages)
+    return Pipeline(stages=stages, sink=sink)
+
+
+def _gnss_cov_enu_m2(fix: GnssFix) -> list[list[float]] | None:
+    """Diagonal ENU covariance from the receiver's accuracy fields, else from DOP x UERE; None if unknown."""
+    h = fix.h_acc_m if fix.h_acc_m is not None else (fix.hdop * UERE_M if fix.hdop is not None else None)
+    if h is None:
+        return None
+    v = fix.v_acc_m if fix.v_acc_m is not None else (fix.vdop * UERE_M if fix.vdop is not None else 2.0 * h)
+    return [[h * h, 0.0, 0.0], [0.0, h * h, 0.0], [0.0, 0.0, v * v]]
+
+
+async def run_source(
+    source: Source,
+    pipeline: Pipeline,
+    *,
+    realtime_factor: float | None = None,
+    on_progress: Callable[[Source, int], None] | None = None,
+    progress_every: int = 5000,
+) -> None:
+    """Drive a source through the pipeline until it ends (or the task is cancelled).
+
+    ``realtime_factor``: None replays as fast as possible; 1.0 paces events at the vehicle's own rate
+    (2.0 twice as fast). Pacing uses the loop clock only to wait; event times stay the log's.
+    """
+    loop = asyncio.get_running_loop()
+    t0_wall = t0_ev = None
+    n = 0
+    async for ev in source:
+        if realtime_factor:
+            if t0_ev is None:
+                t0_wall, t0_ev = loop.time(), ev.t_s
+            delay = t0_wall + (ev.t_s - t0_ev) / realtime_factor - loop.time()
+            if delay > 0.001:
+                await asyncio.sleep(delay)
+        pipeline.process(ev)
+        n += 1
+        if on_progress is not None and n % progress_every == 0:
+            on_progress(source, n)
+    pipeline.finish()
+
+
+def wall_time_s() -> float:
+    """For throughput figures only; never enters an event or a record."""
+    return time.perf_counter()

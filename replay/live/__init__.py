@@ -1,0 +1,1 @@
+"""Benchmarks of the live companion: GPS_INPUT latency, replay throughput and the long GNSS denial run."""
