@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.inject.gps_input import InjectConfig
+from companion.mavlink.dialect import mavlink
 
 
 class ConfigError(Exception):
@@ -43,7 +44,7 @@ class LinkConfig:
     connect: str = ""  # udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, or a serial device
     baud: int = 115200
     system_id: int = 1  # our system id (ArduPilot convention: the vehicle's own id for onboard components)
-    component_id: int = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
+    component_id: int = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
     target_system: int = 0  # 0: the first autopilot heard
     target_component: int = 0  # 0: the component of that first autopilot heartbeat
     heartbeat_hz: float = 1.0

@@ -20,14 +20,16 @@ from dataclasses import dataclass, fields
 from enum import IntEnum
 from typing import ClassVar
 
+from companion.mavlink.dialect import mavlink
+
 
 class FixType(IntEnum):
     """MAVLink GPS_FIX_TYPE (common.xml); dataflash GPS.Status uses the same numbers."""
 
-    NO_GPS = 0
-    NO_FIX = 1
-    FIX_2D = 2
-    FIX_3D = 3
+    NO_GPS = mavlink.GPS_FIX_TYPE_NO_GPS
+    NO_FIX = mavlink.GPS_FIX_TYPE_NO_FIX
+    FIX_2D = mavlink.GPS_FIX_TYPE_2D_FIX
+    FIX_3D = mavlink.GPS_FIX_TYPE_3D_FIX
     DGPS = 4
     RTK_FLOAT = 5
     RTK_FIXED = 6
@@ -171,10 +173,15 @@ class Heartbeat(Event):
 
 
 @dataclass(frozen=True, slots=True)
-class GravitySample(Event):
-    """One gravimeter reading: gravity anomaly in mGal (used by the gravity-matching module)."""
+class GravityReading(Event):
+    """One gravimeter reading (anomaly in mGal, Eotvos-corrected unless the sender says otherwise). ``sigma_mgal``
+    is None when the sender gives none. Sources: companion.sources.gravity (line protocol), the link's
+    NAMED_VALUE_FLOAT (companion.mavlink.gravimeter), the simulated gravimeter (companion.sim.gravimeter)."""
 
-    gravity_anomaly_mgal: float
+    gravity_mgal: float
+    sigma_mgal: float | None = None
+    eotvos_corrected: bool = True
+    sensor: str = ""
     topic: ClassVar[str] = "/input/gravity"
 
 
@@ -211,7 +218,7 @@ EVENT_TYPES: tuple[type[Event], ...] = (
     Reboot,
     StatusText,
     Heartbeat,
-    GravitySample,
+    GravityReading,
     PositionFix,
     AutopilotAltitude,
 )

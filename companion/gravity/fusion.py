@@ -1,13 +1,11 @@
-"""Matcher fixes as position measurements for a Kalman integrator (issue 6 item 3, beyond the papers).
+"""Matcher fixes as position measurements for a Kalman integrator (beyond the papers).
 
-Li et al. 2022 reset the INS with the matched path and name a proper fusion as future work. Two ways in:
-
-* `FixFusionFilter`: a small error-state KF on the horizontal INS errors (position error, velocity error as a
+Li et al. 2022 reset the INS with the matched path and name a proper fusion as future work. `FixFusionFilter`: a small error-state KF on the horizontal INS errors (position error, velocity error as a
   random walk) with each MatchResult as a position measurement of covariance sigma_m^2 I. Between fixes the
   error estimate propagates with the estimated velocity error, so a velocity bias that a reset leaves in
   place is learned and removed. Innovations are gated (chi-square, 2 dof). Pure numpy, no clock.
-* `match_to_gnss_fix`: the same fix as a `GnssFix` event (h_acc_m = sigma_m) in geodetic coordinates, for the
-  streaming Navigator of companion.nav (it already fuses GnssFix positions with their accuracy).
+(The product's streaming Navigator takes matcher fixes as companion.events.PositionFix instead:
+companion.gravity.stage.)
 
 Errors are INS minus truth; corrected = INS - error estimate.
 """
@@ -18,10 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from companion.constants import CHI2_2DOF_999
 from companion.gravity.matchers.base import MatchResult
-from companion.gravity.maps import LocalGravityMap
 
-CHI2_2DOF_999 = 13.816  # 99.9 % quantile, 2 dof
 
 
 @dataclass(frozen=True)
@@ -101,23 +98,3 @@ class FixFusionFilter:
         if not res.ok:
             return False
         return self.update(res.t_s, ins_ne_m, res.position_ne_m, res.sigma_m)
-
-
-def match_to_gnss_fix(res: MatchResult, lmap: LocalGravityMap, alt_msl_m: float | None = None, vel_ne_mps=None,
-                      instance: int = 0):
-    """A successful MatchResult as a GnssFix event (3-D fix type, h_acc_m = sigma_m) for the Navigator.
-
-    Needs a geographic map (a LocalFrame); a local metric map has no geodetic reference.
-    """
-    from companion.events import GnssFix
-
-    if not res.ok:
-        raise ValueError(f"cannot convert a failed match: {res.reason}")
-    if lmap.frame is None:
-        raise ValueError("map has no geodetic reference (local metric grid); cannot make a GNSS fix")
-    lon, lat = lmap.ne_to_xy(res.position_ne_m[0], res.position_ne_m[1])
-    vn, ve = (None, None) if vel_ne_mps is None else (float(vel_ne_mps[0]), float(vel_ne_mps[1]))
-    return GnssFix(t_s=float(res.t_s), fix_type=3, lat_deg=float(lat), lon_deg=float(lon), alt_msl_m=alt_msl_m,
-                   vel_n_mps=vn, vel_e_mps=ve, vel_d_mps=None, ground_speed_mps=None, course_deg=None, satellites=None,
-                   hdop=None, vdop=None, h_acc_m=float(res.sigma_m), v_acc_m=None, speed_acc_mps=None, gps_week=None,
-                   gps_tow_s=None, instance=instance)

@@ -47,9 +47,9 @@ from typing import Literal
 import numpy as np
 from scipy.spatial import cKDTree
 
-from companion.nav.frame import EARTH_RATE_RADPS, WGS84_A_M
+from companion.constants import EARTH_RATE_RADPS, G0_MPS2, WGS84_A_M
 
-G0 = 9.80665
+G0 = G0_MPS2
 UG = 1e-6 * G0
 DEGPH = np.radians(1.0) / 3600.0
 N_STATES = 12

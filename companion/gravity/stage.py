@@ -7,7 +7,7 @@
       --> GnssDeniedInjector (shadow GPS_INPUT) --> GpsInputRecord
       --> DenialErrorStage (horizontal error of fused / injected positions vs the withheld GNSS) --> NavError
 
-A live gravimeter (companion.sources.gravity) delivers GravityReading as input events instead of GravitySimStage.
+A live gravimeter (companion.mavlink.gravimeter, companion.sources.gravity) delivers GravityReading as input events instead of GravitySimStage.
 Positions are laid on the map with a `Placement` (flight NE metres from the navigator's frame origin -> map NE).
 Pure: vehicle time only.
 """
@@ -29,7 +29,9 @@ from companion.inject import Injector
 from companion.inject.gps_input import GpsInputRecord
 from companion.gravity.matchers.base import Matcher, MatchResult
 from companion.gravity.maps import LocalGravityMap
-from companion.sources.gravity import GravityReading, Placement, SimulatedGravimeter
+from companion.events import GravityReading
+from companion.gravity.placement import Placement
+from companion.sim.gravimeter import SimulatedGravimeter
 
 
 def gravity_nav_config(**overrides) -> NavigatorConfig:

@@ -17,10 +17,11 @@ import math
 
 from companion.events import Attitude, Event, FixType, GnssFix, ImuSample, StatusText
 from companion.timebase import VehicleClock
+from companion.mavlink.dialect import mavlink
 
 WANTED = ["IMU", "IMU2", "IMU3", "GPS", "GPS2", "GPA", "GPA2", "ATT", "MSG"]
 _INSTANCE = {"IMU": 0, "IMU2": 1, "IMU3": 2, "GPS": 0, "GPS2": 1, "GPA": 0, "GPA2": 1}
-MAV_SEVERITY_INFO = 6
+MAV_SEVERITY_INFO = mavlink.MAV_SEVERITY_INFO
 
 
 class DataflashDecoder:

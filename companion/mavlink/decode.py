@@ -27,11 +27,12 @@ from companion.events import (
     StatusText,
     SystemTime,
 )
+from companion.mavlink.dialect import mavlink
 from companion.timebase import VehicleClock
 
-MAV_AUTOPILOT_INVALID = 8
-MAV_TYPE_GCS = 6
-MAV_MODE_FLAG_SAFETY_ARMED = 128
+MAV_AUTOPILOT_INVALID = mavlink.MAV_AUTOPILOT_INVALID
+MAV_TYPE_GCS = mavlink.MAV_TYPE_GCS
+MAV_MODE_FLAG_SAFETY_ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 UINT16_MAX = 65535
 
 #: Message types the decoder uses (a live link requests these; file readers skip the rest).
@@ -65,10 +66,16 @@ class MavlinkDecoder:
         self.clock = VehicleClock()
         self.target_system = target_system
         self.target_component = target_component
-        #: a companion.sources.gravity.NamedValueGravityDecoder (None: gravimeter readings are not decoded); its
-        #: NAMED_VALUE_FLOAT is accepted from any component of the autopilot's system (an autopilot Lua script sends
-        #: as the autopilot, a gravimeter as its own component)
+        #: a companion.mavlink.gravimeter.NamedValueGravityDecoder (None: gravimeter readings are not decoded)
         self.gravity = gravity
+        #: message type -> handler; and the message types taken from any component of the autopilot's system
+        #: rather than from the autopilot component alone (source policy)
+        self.handlers = dict(_HANDLERS)
+        self.from_system: set[str] = set()
+        if gravity is not None:
+            # an autopilot Lua script sends as the autopilot, a gravimeter as its own component of the vehicle
+            self.handlers["NAMED_VALUE_FLOAT"] = MavlinkDecoder._named_value
+            self.from_system.add("NAMED_VALUE_FLOAT")
         self.dropped: Counter[str] = Counter()
         self._last_boot_s: float | None = None
         self._last_boot_recv_s: float | None = None
@@ -105,14 +112,10 @@ class MavlinkDecoder:
         if self.target_system is None:
             self.dropped["before autopilot heartbeat"] += 1
             return []
-        if mtype == "NAMED_VALUE_FLOAT" and self.gravity is not None and src_sys == self.target_system:
-            out: list[Event] = []
-            self._named_value(msg, recv_s, out)
-            return out
-        if src_sys != self.target_system or src_comp != self.target_component:
+        if src_sys != self.target_system or (src_comp != self.target_component and mtype not in self.from_system):
             self.dropped[f"other system {src_sys}/{src_comp}"] += 1
             return []
-        handler = _HANDLERS.get(mtype)
+        handler = self.handlers.get(mtype)
         if handler is None:
             return []
         out: list[Event] = []
@@ -241,6 +244,8 @@ class MavlinkDecoder:
         if t_s is not None:
             out.append(self.gravity.reading(t_s, v))
 
+
+#: Handlers of the messages every decoder takes from the autopilot component (more per decoder: `handlers`).
 _HANDLERS = {
     "HEARTBEAT": MavlinkDecoder._heartbeat,
     "GPS_RAW_INT": MavlinkDecoder._gps,

@@ -34,19 +34,19 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from companion.config import LinkConfig, StreamConfig, load_signing_key
 from companion.events import Event, Reboot
 from companion.mavlink.transport import LinkClosed, Transport, open_transport
 from companion.mavlink.address import parse_url
+from companion.mavlink.dialect import mavlink as mavlink2
 from companion.mavlink.decode import MavlinkDecoder
 
-MAV_TYPE_ONBOARD_CONTROLLER = 18
-MAV_AUTOPILOT_INVALID = 8
-MAV_STATE_ACTIVE = 4
-MAV_CMD_SET_MESSAGE_INTERVAL = 511
-MAV_RESULT_ACCEPTED = 0
+MAV_TYPE_ONBOARD_CONTROLLER = mavlink2.MAV_TYPE_ONBOARD_CONTROLLER
+MAV_AUTOPILOT_INVALID = mavlink2.MAV_AUTOPILOT_INVALID
+MAV_STATE_ACTIVE = mavlink2.MAV_STATE_ACTIVE
+MAV_CMD_SET_MESSAGE_INTERVAL = mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL
+MAV_RESULT_ACCEPTED = mavlink2.MAV_RESULT_ACCEPTED
 #: seconds since 2015-01-01, the MAVLink signing epoch
 _SIGNING_EPOCH_UNIX_S = 1420070400
 
@@ -85,8 +85,8 @@ class MavlinkLink:
         self.clock = clock
         # a configured target system without a component means its autopilot (MAV_COMP_ID_AUTOPILOT1)
         ts = link.target_system or None
-        # gravity: a NamedValueGravityDecoder for gravimeter readings (companion.sources.gravity), or None
-        self.decoder = MavlinkDecoder(ts, (link.target_component or 1) if ts else None, gravity=gravity)
+        # gravity: a NamedValueGravityDecoder for gravimeter readings (companion.mavlink.gravimeter), or None
+        self.decoder = MavlinkDecoder(ts, (link.target_component or mavlink2.MAV_COMP_ID_AUTOPILOT1) if ts else None, gravity=gravity)
         self.mav = self._new_mav()
         self.counts: Counter[str] = Counter()  # link event counts: opened, lost, reboot, stream_requests, ...
         self.messages_in = 0
@@ -246,22 +246,22 @@ class MavlinkLink:
                     if mtype == "BAD_DATA":
                         continue
                     src = (msg.get_srcSystem(), msg.get_srcComponent())
-                    if self.decoder.target_system is None or src != (self.decoder.target_system, self.decoder.target_component):
-                        if evs:  # a gravimeter's readings from another component of the vehicle
-                            events += evs
-                            trigger = mtype
-                        continue
-                    last_rx = now
-                    rate_counts[mtype] += 1
-                    if self.target is None and mtype == "HEARTBEAT":
-                        self.target = src
-                        heard = True
-                        self._status("autopilot", f"system {src[0]} component {src[1]}")
-                        self._request_streams("autopilot found")
-                        window_start = now
-                        rate_counts.clear()
-                    if mtype == "COMMAND_ACK" and msg.command == MAV_CMD_SET_MESSAGE_INTERVAL and msg.result != MAV_RESULT_ACCEPTED:
-                        self._status("ack", f"SET_MESSAGE_INTERVAL refused (result {msg.result})")
+                    # the autopilot itself keeps the link alive, sets the target and answers stream requests; what
+                    # the decoder takes from other components (its source policy) only brings events
+                    if self.decoder.target_system is not None and src == (self.decoder.target_system,
+                                                                            self.decoder.target_component):
+                        last_rx = now
+                        rate_counts[mtype] += 1
+                        if self.target is None and mtype == "HEARTBEAT":
+                            self.target = src
+                            heard = True
+                            self._status("autopilot", f"system {src[0]} component {src[1]}")
+                            self._request_streams("autopilot found")
+                            window_start = now
+                            rate_counts.clear()
+                        if (mtype == "COMMAND_ACK" and msg.command == MAV_CMD_SET_MESSAGE_INTERVAL
+                                and msg.result != MAV_RESULT_ACCEPTED):
+                            self._status("ack", f"SET_MESSAGE_INTERVAL refused (result {msg.result})")
                     if evs:
                         events += evs
                         trigger = mtype

@@ -11,10 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-WGS84_A_M = 6378137.0
-WGS84_F = 1.0 / 298.257223563
-WGS84_E2 = WGS84_F * (2.0 - WGS84_F)
-EARTH_RATE_RADPS = 7.2921150e-5
+from companion.constants import EARTH_RATE_RADPS, WGS84_A_M, WGS84_E2, WGS84_F  # noqa: F401 - re-exported
 
 
 def radii_m(lat_rad: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -55,12 +55,10 @@ from companion.nav.outputs import (
     ModeChange,
     PredictorPoint,
 )
+from companion.constants import CHI2_1DOF_999, CHI2_2DOF_999, CHI2_3DOF_999, receiver_sigma
 from companion.events import Attitude, AutopilotAltitude, Event, GnssFix, ImuSample, PositionFix
 from companion.nav.frame import LocalFrame, radii_m
 
-CHI2_3DOF_999 = 16.266  # 99.9 % quantile of chi-square with 3 degrees of freedom
-CHI2_2DOF_999 = 13.816  # 99.9 % quantile of chi-square with 2 degrees of freedom
-CHI2_1DOF_999 = 10.828  # 99.9 % quantile of chi-square with 1 degree of freedom
 
 
 @dataclass(frozen=True)
@@ -369,20 +367,11 @@ class Navigator:
     def _fix_sigmas(self, ev: GnssFix) -> tuple[float, float, float, float]:
         """(update sigma h, v, gate sigma h, v). The gate always uses the receiver's accuracy."""
         c = self.config
-        if ev.h_acc_m is not None and ev.h_acc_m > 0:
-            sh = ev.h_acc_m
-        elif ev.hdop is not None and ev.hdop > 0:
-            sh = ev.hdop * c.uere_h_m
-        else:
+        sh, sv = receiver_sigma(ev, c.uere_h_m, c.uere_v_m)
+        if sh is None:
             sh = c.default_sigma_h_m
-        if ev.v_acc_m is not None and ev.v_acc_m > 0:
-            sv = ev.v_acc_m
-        elif ev.vdop is not None and ev.vdop > 0:
-            sv = ev.vdop * c.uere_v_m
-        elif ev.hdop is not None and ev.hdop > 0:
-            sv = ev.hdop * c.uere_v_m
-        else:
-            sv = c.default_sigma_v_m
+        if sv is None:
+            sv = ev.hdop * c.uere_v_m if ev.hdop is not None and ev.hdop > 0 else c.default_sigma_v_m
         gh, gv = max(sh, c.min_sigma_h_m), max(sv, c.min_sigma_h_m)
         if c.gnss_sigma_model == "short_term":
             scale = max(1.0, ev.hdop) if ev.hdop is not None and ev.hdop > 0 else 2.0

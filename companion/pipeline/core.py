@@ -23,6 +23,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+from companion.constants import UERE_M, receiver_sigma
 from companion.events import Event, GnssFix, ImuSample, PositionFix
 from companion.sources.base import Source
 from companion.stats import StreamStats
@@ -112,10 +113,6 @@ class Pipeline:
                 self._run_stages(outs, i + 1)
 
 
-#: Assumed 1-sigma user range error when a receiver gives only DOPs (typical single-frequency u-blox).
-UERE_M = 2.5
-
-
 #: Outputs that also go to Foxglove's Map panel, one LocationFix track each.
 _MAP_TRACKS = {"FusedState": "/map/fused", "PredictorPoint": "/map/predictor"}
 
@@ -164,10 +161,10 @@ def build_pipeline(
 
 def _gnss_cov_enu_m2(fix: GnssFix) -> list[list[float]] | None:
     """Diagonal ENU covariance from the receiver's accuracy fields, else from DOP x UERE; None if unknown."""
-    h = fix.h_acc_m if fix.h_acc_m is not None else (fix.hdop * UERE_M if fix.hdop is not None else None)
+    h, v = receiver_sigma(fix, UERE_M)
     if h is None:
         return None
-    v = fix.v_acc_m if fix.v_acc_m is not None else (fix.vdop * UERE_M if fix.vdop is not None else 2.0 * h)
+    v = v if v is not None else 2.0 * h
     return [[h * h, 0.0, 0.0], [0.0, h * h, 0.0], [0.0, 0.0, v * v]]
 
 

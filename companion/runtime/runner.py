@@ -46,7 +46,7 @@ class Runtime:
         self.gravity_stage = None
         if config.gravity.map:  # gravity-aided: readings from the link, fixes into the navigator
             from companion.gravity.stage import live_gravity_stage
-            from companion.sources.gravity import NamedValueGravityDecoder
+            from companion.mavlink.gravimeter import NamedValueGravityDecoder
 
             self.gravity_stage = live_gravity_stage(config.gravity)
             stages.append(self.gravity_stage)

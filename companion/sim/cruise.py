@@ -21,6 +21,7 @@ import math
 
 import numpy as np
 
+from companion.constants import G0_MPS2
 from companion.nav.frame import LocalFrame
 from companion.sim.trajectory import BLEND_PEAK, Climb, FlightProfile, Hold, Land, Leg, legs_through_waypoints
 
@@ -36,7 +37,7 @@ _MAX_BANK_DEG = 20.0
 
 def default_turn_radius_m(speed_mps: float, spacing_m: float) -> float:
     """A 20 deg bank turn, at least 60 s per half circle (ships), and small enough for the cross leg."""
-    r = max(speed_mps**2 / (9.80665 * math.tan(math.radians(_MAX_BANK_DEG))), 60.0 * speed_mps / math.pi)
+    r = max(speed_mps**2 / (G0_MPS2 * math.tan(math.radians(_MAX_BANK_DEG))), 60.0 * speed_mps / math.pi)
     return min(r, 0.4 * spacing_m)
 
 

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from companion.mavlink.dialect import mavlink
 from companion.nav.frame import LocalFrame
 from companion.sim.sensors import (
     AttitudeEstimateModel,
@@ -59,9 +60,9 @@ COPTER_MODES = {
     "POSHOLD": 16,
 }
 
-MAV_SEVERITY_CRITICAL = 2
-MAV_SEVERITY_WARNING = 4
-MAV_SEVERITY_INFO = 6
+MAV_SEVERITY_CRITICAL = mavlink.MAV_SEVERITY_CRITICAL
+MAV_SEVERITY_WARNING = mavlink.MAV_SEVERITY_WARNING
+MAV_SEVERITY_INFO = mavlink.MAV_SEVERITY_INFO
 
 
 #: Sensor sets of generated flights, by name (``companion sim --sensors``): "drone" is the multicopter's MEMS IMU and

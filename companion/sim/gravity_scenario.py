@@ -11,11 +11,10 @@ from typing import Literal, Sequence
 
 import numpy as np
 
-from companion.nav.frame import EARTH_RATE_RADPS, WGS84_A_M
+from companion.constants import EARTH_RATE_RADPS, G0_MPS2, WGS84_A_M
 from companion.gravity.eotvos import correct_eotvos_mgal, eotvos_from_ne_mgal
 from companion.gravity.maps import LocalGravityMap
 
-G0_MPS2 = 9.80665
 UG_MPS2 = 1e-6 * G0_MPS2
 DEGPH_RADPS = np.radians(1.0) / 3600.0
 

@@ -42,9 +42,10 @@ from typing import Sequence
 
 import numpy as np
 
+from companion.constants import G0_MPS2
 from companion.nav.frame import EARTH_RATE_RADPS, WGS84_E2, LocalFrame, normal_gravity_mps2, radii_m
 
-GRAVITY_MPS2 = 9.80665
+GRAVITY_MPS2 = G0_MPS2
 G_NED_MPS2 = np.array([0.0, 0.0, GRAVITY_MPS2])
 _INTERNAL_RATE_HZ = 2000.0
 EARTH_MODELS = ("flat", "ellipsoid")

@@ -45,7 +45,7 @@ from companion.nav.frame import LocalFrame
 from companion.inject.gps_input import decode_gps_input
 
 _EPOCH_US = 1e15
-MAV_CMD_SET_MESSAGE_INTERVAL = 511
+MAV_CMD_SET_MESSAGE_INTERVAL = mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL
 #: streams an ArduPilot sends whatever was requested
 _ALWAYS = ("HEARTBEAT", "STATUSTEXT", "NAMED_VALUE_FLOAT")
 _STREAMED = ("SYSTEM_TIME", "GPS_RAW_INT", "GPS2_RAW", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "ATTITUDE",
@@ -132,7 +132,8 @@ def gravity_readings(profile, lmap, *, hz: float = 1.0, sigma_mgal: float = 1.0,
     The truth lat/lon is mapped onto the map with the map's own frame (an identity Placement): the flight is
     where its profile says it is on the Earth.
     """
-    from companion.sources.gravity import Placement, SimulatedGravimeter
+    from companion.gravity.placement import Placement
+    from companion.sim.gravimeter import SimulatedGravimeter
 
     if not hz > 0:
         raise ValueError("gravity rate must be positive")

@@ -26,7 +26,9 @@ from companion.events import Event, GnssFix, PositionFix
 from companion.nav.frame import LocalFrame
 from companion.gravity.matchers.base import Matcher, MatchResult
 from companion.gravity.maps import LocalGravityMap, load_grid
-from companion.sources.gravity import GravityReading, Placement, SimulatedGravimeter
+from companion.events import GravityReading
+from companion.gravity.placement import Placement
+from companion.sim.gravimeter import SimulatedGravimeter
 
 
 #: What the navigator emits (kept in ChainResult.outputs).

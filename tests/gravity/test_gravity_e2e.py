@@ -9,9 +9,11 @@ import pytest
 from companion.sim.circle import simulate_flight
 from companion.gravity import GravityMap, LocalGravityMap
 from companion.gravity.matchers.li_viterbi import ViterbiConfig, ViterbiMatcher
-from companion.sources.gravity import (GravityReading, NamedValueGravityDecoder, Placement, SimulatedGravimeter,
-                                       SimulatedGravitySource, UdpGravitySource, format_gravity_line,
-                                       parse_gravity_line)
+from companion.events import GravityReading
+from companion.gravity.placement import Placement
+from companion.mavlink.gravimeter import NamedValueGravityDecoder
+from companion.sim.gravimeter import SimulatedGravimeter, SimulatedGravitySource
+from companion.sources.gravity import UdpGravitySource, format_gravity_line, parse_gravity_line
 from replay.harness.chain import run_gravity_chain
 
 

@@ -16,7 +16,8 @@ from companion.nav.frame import LocalFrame
 from companion.gravity.stage import FixAcceptance, GravityMatchStage, MatchRecord, window_signal_mgal
 from companion.gravity.matchers.base import Matcher, MatchResult
 from companion.gravity.maps import GravityMap, LocalGravityMap
-from companion.sources.gravity import GravityReading, NamedValueGravityDecoder
+from companion.events import GravityReading
+from companion.mavlink.gravimeter import NamedValueGravityDecoder
 from companion.mavlink.decode import MavlinkDecoder
 
 
