@@ -94,12 +94,8 @@ def _finish_record(recorder, source, pipeline, config: dict, stopped_by: str | N
 
 
 def _stage_metadata(stage) -> dict[str, str]:
-    """What a stage says about itself: its own metadata(), plus its mode and the reason for it."""
-    meta = {k: str(v) for k, v in getattr(stage, "metadata", dict)().items()}
-    for attr in ("mode", "mode_reason"):
-        if getattr(stage, attr, None):
-            meta[attr] = str(getattr(stage, attr))
-    return meta
+    """What a stage says about itself (companion.pipeline.stage.Stage.metadata)."""
+    return {k: str(v) for k, v in stage.metadata().items()}
 
 
 def _print_summary(source, pipeline, out: Path, stopped_by: str | None, elapsed_s: float) -> None:
@@ -127,8 +123,9 @@ def _build_pipeline(recorder, args):
         if getattr(args, "deny_gnss_after", None) is not None:
             raise UsageError("--deny-gnss-after needs --gravity-map (the gravity-aided replay)")
         return build_pipeline(recorder)
-    from companion.gravity.stage import FixAcceptance, GnssDenial, gravity_stages
     from companion.gravity.maps import LocalGravityMap, MapFormatError, load_grid
+    from companion.gravity.stage import FixAcceptance, gravity_replay_pipeline
+    from companion.pipeline.denial import GnssDenial
 
     if args.deny_gnss_after is None:
         raise UsageError("--gravity-map needs --deny-gnss-after SECONDS")
@@ -142,12 +139,11 @@ def _build_pipeline(recorder, args):
             raise UsageError(f"--gravity-place {args.gravity_place!r}: expected LAT,LON in degrees") from None
     try:
         lmap = LocalGravityMap.around(load_grid(args.gravity_map))
-        stages = gravity_stages(lmap, GnssDenial(args.deny_gnss_after), matcher=args.matcher, place_lat_lon=place,
-                                sigma_mgal=args.gravity_sigma_mgal, seed=args.gravity_seed,
-                                acceptance=None if args.gravity_accept_all else FixAcceptance())
+        return gravity_replay_pipeline(recorder, lmap, GnssDenial(args.deny_gnss_after), matcher=args.matcher,
+                                       place_lat_lon=place, sigma_mgal=args.gravity_sigma_mgal, seed=args.gravity_seed,
+                                       acceptance=None if args.gravity_accept_all else FixAcceptance())
     except (MapFormatError, ValueError) as err:
         raise UsageError(f"gravity map {args.gravity_map}: {err}") from None
-    return build_pipeline(recorder, navigate=False, extra_stages=stages)
 
 
 def cmd_replay(args) -> int:
@@ -186,7 +182,7 @@ def cmd_replay(args) -> int:
     _print_summary(source, pipeline, out, stopped_by, wall_time_s() - t0)
     if args.gravity_map:
         for stage in pipeline.stages:
-            for line in getattr(stage, "summary_lines", list)():
+            for line in stage.summary_lines():
                 print(line)
     if stopped_by:
         return EXIT_INTERRUPTED

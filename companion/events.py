@@ -43,6 +43,10 @@ class Event:
 
     t_s: float
     topic: ClassVar[str] = "/events"
+    #: a stage's output of this type goes back to the pipeline's first stage as an input (companion.pipeline.core)
+    feedback: ClassVar[bool] = False
+    #: False for what passes between stages only and is not recorded (e.g. the truth of a GNSS denial)
+    recorded: ClassVar[bool] = True
 
     def to_dict(self) -> dict:
         """Plain dict for JSON; NaN/inf become None (JSON has no NaN), tuples become lists."""
@@ -189,7 +193,8 @@ class GravityReading(Event):
 class PositionFix(Event):
     """A horizontal position measurement that is not GNSS (e.g. a gravity-matching fix), with its own
     1-sigma north/east uncertainty. The Navigator fuses it with its own gate; it never feeds the GNSS
-    predictor. ``source`` names the producer ("gravity:viterbi", ...)."""
+    predictor. ``source`` names the producer ("gravity:viterbi", ...). A stage's PositionFix is fed back to the
+    pipeline's first stages (``feedback``), so the navigator sees it like an input event."""
 
     lat_deg: float
     lon_deg: float
@@ -197,6 +202,7 @@ class PositionFix(Event):
     sigma_e_m: float
     source: str = ""
     topic: ClassVar[str] = "/input/position_fix"
+    feedback: ClassVar[bool] = True  # a measurement for the navigator, which is the pipeline's first stage
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,11 +1,12 @@
-"""Gravity-aided navigation as pipeline stages (issue 6 items 3-4).
+"""The product's gravity match stage: navigator positions + gravimeter readings -> matcher fixes for the navigator.
 
-    source events --> GnssDeniedNavigator (stage 0; GNSS after the cut withheld) --> FusedState, FrameInfo
-      --> GravitySimStage (replay/sim only: a SimulatedGravimeter at the withheld GNSS truth) --> GravityReading
+    ... --> Navigator --> FusedState, FrameInfo
       --> GravityMatchStage (Matcher.feed on navigator positions + readings) --> PositionFix, MatchRecord
-      --> (PositionFix goes back to the Navigator: companion.pipeline.core FEEDBACK_TYPES)
-      --> GnssDeniedInjector (shadow GPS_INPUT) --> GpsInputRecord
-      --> DenialErrorStage (horizontal error of fused / injected positions vs the withheld GNSS) --> NavError
+      --> (PositionFix goes back to the Navigator: a feedback event, companion.pipeline.core)
+
+In a replay with GNSS denied (`gravity_replay_pipeline`) a companion.pipeline.denial.GnssDenialStage stands in
+front of the navigator, a companion.sim.gravimeter.GravitySimStage reads the map at the withheld GNSS truth, the
+injector builds shadow GPS_INPUT and a DenialErrorStage measures the error against the withheld fixes.
 
 A live gravimeter (companion.mavlink.gravimeter, companion.sources.gravity) delivers GravityReading as input events instead of GravitySimStage.
 Positions are laid on the map with a `Placement` (flight NE metres from the navigator's frame origin -> map NE).
@@ -16,22 +17,23 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 
-from companion.nav.navigator import Navigator, NavigatorConfig
-from companion.nav.outputs import FrameInfo, FusedState
-from companion.events import Event, GnssFix, PositionFix
-from companion.nav.frame import LocalFrame
-from companion.inject import Injector
-from companion.inject.gps_input import GpsInputRecord
-from companion.gravity.matchers.base import Matcher, MatchResult
+from companion.events import Event, GravityReading, PositionFix
 from companion.gravity.maps import LocalGravityMap
-from companion.events import GravityReading
+from companion.gravity.matchers.base import Matcher, MatchResult
 from companion.gravity.placement import Placement
-from companion.sim.gravimeter import SimulatedGravimeter
+from companion.inject import InjectConfig, Injector
+from companion.nav.frame import LocalFrame
+from companion.nav.navigator import NavigatorConfig
+from companion.nav.outputs import FrameInfo, FusedState
+from companion.pipeline.core import Pipeline, build_pipeline
+from companion.pipeline.denial import DenialErrorStage, GnssDenial, GnssDenialStage, frame_of
+from companion.pipeline.stage import Stage
+from companion.sim.gravimeter import GravitySimStage, SimulatedGravimeter
 
 
 def gravity_nav_config(**overrides) -> NavigatorConfig:
@@ -44,86 +46,6 @@ def gravity_nav_config(**overrides) -> NavigatorConfig:
     and the matcher follows the dragged track (fix error 12 -> 360 m in 85 s) instead of 13 m mean error."""
     return NavigatorConfig(**{"gnss_sigma_model": "accuracy", "fuse_predictor": False, "fuse_autopilot_alt": True,
                               **overrides})
-
-
-class GnssDenial:
-    """Shared cut time: GNSS fixes at or after (first event time + after_s) are withheld (kept as truth only)."""
-
-    def __init__(self, after_s: float | None):
-        self.after_s = None if after_s is None else float(after_s)
-        self.t_cut_s: float | None = None
-
-    def observe(self, ev: Any) -> None:
-        if self.t_cut_s is None and self.after_s is not None and isinstance(ev, Event) and math.isfinite(ev.t_s):
-            self.t_cut_s = ev.t_s + self.after_s
-
-    def withheld(self, ev: Any) -> bool:
-        self.observe(ev)
-        return isinstance(ev, GnssFix) and self.t_cut_s is not None and ev.t_s >= self.t_cut_s
-
-
-class GnssDeniedNavigator(Navigator):
-    """The Navigator with GNSS withheld after the cut (a test/replay set-up: the real fixes stay truth)."""
-
-    def __init__(self, config: NavigatorConfig | None, denial: GnssDenial) -> None:
-        super().__init__(config)
-        self.denial = denial
-        self.gnss_withheld = 0
-
-    def process(self, event: Event) -> list[Event]:
-        if self.denial.withheld(event):
-            self.gnss_withheld += 1
-            return []
-        return super().process(event)
-
-    def metadata(self) -> dict[str, str]:
-        return {"gnss_withheld_after_s": f"{self.denial.after_s:g}", "gnss_withheld": str(self.gnss_withheld)}
-
-
-class GnssDeniedInjector(Injector):
-    """The GPS_INPUT injector blind to the withheld fixes (its receiver cross-check would otherwise use truth)."""
-
-    def __init__(self, config, denial: GnssDenial, sender=None) -> None:
-        super().__init__(config, sender)
-        self.denial = denial
-
-    def process(self, item: Any) -> list[Event]:
-        if self.denial.withheld(item):
-            return []
-        return super().process(item)
-
-
-def _frame_of(item: FrameInfo) -> LocalFrame:
-    return LocalFrame(item.ref_lat_deg, item.ref_lon_deg, item.ref_alt_msl_m)
-
-
-class GravitySimStage:
-    """Simulated gravimeter along the withheld GNSS fixes (truth), one reading per `period_s`."""
-
-    def __init__(self, gravimeter: SimulatedGravimeter, denial: GnssDenial, period_s: float = 1.0) -> None:
-        self.g, self.denial, self.period_s = gravimeter, denial, float(period_s)
-        self._frame: LocalFrame | None = None
-        self._next_t = -math.inf
-        self.readings = 0
-
-    def process(self, item: Any) -> list[Event]:
-        if isinstance(item, FrameInfo):
-            self._frame = _frame_of(item)
-        elif (self._frame is not None and self.denial.withheld(item) and item.has_position
-              and item.instance == 0 and item.t_s + 1e-9 >= self._next_t):
-            ne = self._frame.to_ned_m(item.lat_deg, item.lon_deg, item.alt_msl_m or 0.0)[:2]
-            r = self.g.read(item.t_s, ne)
-            if r is not None:
-                self._next_t = item.t_s + self.period_s
-                self.readings += 1
-                return [r]
-        return []
-
-    def finish(self) -> list[Event]:
-        return []
-
-    def metadata(self) -> dict[str, str]:
-        return {"readings": str(self.readings), "period_s": f"{self.period_s:g}", "sigma_mgal": f"{self.g.sigma_mgal:g}"}
 
 
 @dataclass(frozen=True, slots=True)
@@ -183,14 +105,39 @@ def window_signal_mgal(g_mgal: np.ndarray, sigma_mgal: float) -> float:
     return float(math.sqrt(max(float(np.var(g, ddof=1)) - sigma_mgal**2, 0.0)))
 
 
-class GravityMatchStage:
+@dataclass(frozen=True, slots=True)
+class MatchSample:
+    """One matcher input, in map metres: the navigator's position and velocity at the reading's time, the reading,
+    the noise of the value fed (mGal; sigma / sqrt(n) for a mean of n readings) and the navigator's horizontal
+    1-sigma at that time (m)."""
+
+    t_s: float
+    north_m: float
+    east_m: float
+    vel_n_mps: float
+    vel_e_mps: float
+    gravity_mgal: float
+    sigma_mgal: float
+    sigma_h_m: float
+
+    def as_row(self) -> tuple[float, ...]:
+        return (self.t_s, self.north_m, self.east_m, self.vel_n_mps, self.vel_e_mps, self.gravity_mgal,
+                self.sigma_mgal, self.sigma_h_m)
+
+    @classmethod
+    def of_row(cls, row) -> "MatchSample":
+        return cls(*(float(v) for v in row))
+
+
+class GravityMatchStage(Stage):
     """Online map matching: FusedState (navigator positions, velocities) + GravityReading -> Matcher.feed
     -> PositionFix (sigma = max(matcher sigma, sigma_floor_m)) + MatchRecord.
 
     A reading is matched once a FusedState at or after its time is seen: the navigator position and velocity
     are interpolated to the reading time between the two bracketing states (readings older than every state
-    are dropped). sigma_floor_m: a matcher's own spread can be overconfident (cell quantisation, ambiguity);
-    default one map cell of the matcher if it has one, else the map's cell.
+    are dropped); each state is laid on the map once. sigma_floor_m: a matcher's own spread can be
+    overconfident (cell quantisation, ambiguity); default one map cell of the matcher if it has one, else the
+    map's cell.
 
     Positions reach the map either through a `Placement` of the navigator's local frame (replay: a drone log laid on
     a chosen map area) or, with ``geographic=True`` (a live vehicle flying over the map's own area), through
@@ -199,8 +146,10 @@ class GravityMatchStage:
     feed_spacing_m: None feeds every reading; a distance averages the readings along each stretch of that length of
     the navigator track (airborne gravimetry is low-pass filtered; the matchers' designs take one sample per cell)
     and feeds the mean reading at the mean time and position. acceptance: see `FixAcceptance` (None: every fix).
-    navigator_prior: a Viterbi matcher's first state gets a Gaussian prior of the navigator's own horizontal sigma
-    (ours, not the paper's uniform B_1: without it a smooth map lets the path jump to a look-alike tens of km away).
+    navigator_prior: a matcher that takes a prior (Viterbi) gets the navigator's own horizontal sigma at the
+    window's first sample as the Gaussian prior of its first state (ours, not the paper's uniform B_1: without it a
+    smooth map lets the path jump to a look-alike tens of km away), floored at half a cell so the lattice can
+    still move (RVBMP-2i+prior in BENCHMARKS.md).
     """
 
     def __init__(self, lmap: LocalGravityMap, matcher: Matcher, placement: Placement | None = None,
@@ -212,41 +161,48 @@ class GravityMatchStage:
         if feed_spacing_m is not None and not feed_spacing_m > 0:
             raise ValueError("feed_spacing_m must be > 0")
         self.lmap, self.matcher = lmap, matcher
+        self.matcher_name = matcher.name  # as run: with the navigator prior once the first window is full
         self.placement = placement or Placement()
         self.geographic = bool(geographic)
-        cells = getattr(matcher, "cells", None)
-        self.cell_m = float(cells.cell_m) if cells is not None else float(min(lmap.cell_size_m()))
+        self.cell_m = float(matcher.cell_m) if matcher.cell_m is not None else float(min(lmap.cell_size_m()))
         self.sigma_floor_m = float(sigma_floor_m if sigma_floor_m is not None else self.cell_m)
         self.source = source or f"gravity:{matcher.name}"
         self.feed_spacing_m = feed_spacing_m
         self.acceptance = acceptance
-        cfg = getattr(matcher, "cfg", None) or getattr(matcher, "config", None)
-        self.navigator_prior = bool(navigator_prior) and hasattr(getattr(matcher, "cfg", None), "prior_sigma_m")
-        self.sigma_mgal = float(sigma_mgal if sigma_mgal is not None else getattr(cfg, "sigma_z_mgal", 1.0))
+        self.navigator_prior = bool(navigator_prior) and matcher.supports_prior
+        self.sigma_mgal = float(sigma_mgal if sigma_mgal is not None else
+                                (matcher.sigma_z_mgal if matcher.sigma_z_mgal is not None else 1.0))
         self._frame: LocalFrame | None = None
         self._prev: FusedState | None = None
+        self._prev_x: np.ndarray | None = None  # the previous state laid on the map, once needed
         self._pending: deque[GravityReading] = deque()
-        self._acc: list[np.ndarray] = []  # readings of the current stretch: (t, n, e, vn, ve, g, sigma_g, sigma_h) map NE
+        self._acc: list[MatchSample] = []  # readings of the current stretch (map NE)
         self._acc_dist_m = 0.0  # track length of the stretch, from the last reading of the previous one
-        self._acc_last: np.ndarray | None = None
-        self._fed: deque[np.ndarray] = deque(maxlen=max(2, int(getattr(matcher, "window_len", 2))))
+        self._acc_last: MatchSample | None = None
+        self._fed: deque[MatchSample] = deque(maxlen=max(2, int(matcher.window_len)))
         self.results: list[MatchResult] = []  # ok matches, in map NE
         self.n_fed = self.n_fixes = self.n_failed = self.n_rejected = 0
 
     def process(self, item: Any) -> list[Event]:
         if isinstance(item, FrameInfo):
-            self._frame = _frame_of(item)
+            self._frame = frame_of(item)
         elif isinstance(item, GravityReading):
             if math.isfinite(item.gravity_mgal):
                 self._pending.append(item)
         elif isinstance(item, FusedState) and self._frame is not None:
             out: list[Event] = []
             prev, self._prev = self._prev, item
+            xa, xb = self._prev_x, None
             while self._pending and self._pending[0].t_s <= item.t_s:
                 r = self._pending.popleft()
                 if prev is None or r.t_s < prev.t_s:
                     continue
-                out += self._reading(r, prev, item)
+                if xa is None:
+                    xa = self._map_sample(prev)
+                if xb is None:
+                    xb = self._map_sample(item)
+                out += self._reading(r, prev, item, xa, xb)
+            self._prev_x = xb
             return out
         return []
 
@@ -272,46 +228,46 @@ class GravityMatchStage:
         lat, lon, _ = self._frame.to_geodetic(np.array([ne[0], ne[1], 0.0]))
         return float(lat), float(lon), ne
 
-    def _reading(self, r: GravityReading, a: FusedState, b: FusedState) -> list[Event]:
-        xa, xb = self._map_sample(a), self._map_sample(b)
+    def _reading(self, r: GravityReading, a: FusedState, b: FusedState, xa: np.ndarray, xb: np.ndarray) -> list[Event]:
         w = (r.t_s - a.t_s) / (b.t_s - a.t_s) if b.t_s > a.t_s else 1.0
         x = xa + w * (xb - xa)
         sig_h = a.sigma_h_m + w * (b.sigma_h_m - a.sigma_h_m)
-        sample = np.array([r.t_s, x[0], x[1], x[2], x[3], r.gravity_mgal, self.sigma_mgal, sig_h])
+        sample = MatchSample(float(r.t_s), float(x[0]), float(x[1]), float(x[2]), float(x[3]), float(r.gravity_mgal),
+                             self.sigma_mgal, float(sig_h))
         if self.feed_spacing_m is None:
             return self._feed(sample)
         if self._acc_last is not None:
-            self._acc_dist_m += float(np.hypot(*(sample[1:3] - self._acc_last[1:3])))
+            self._acc_dist_m += float(np.hypot(sample.north_m - self._acc_last.north_m,
+                                               sample.east_m - self._acc_last.east_m))
         self._acc_last = sample
         self._acc.append(sample)
         if self._acc_dist_m < self.feed_spacing_m:
             return []
-        mean = np.mean(np.asarray(self._acc), axis=0)
+        mean = np.mean(np.array([s.as_row() for s in self._acc]), axis=0)
         mean[6] = self.sigma_mgal / math.sqrt(len(self._acc))  # noise of a mean of n readings
         self._acc, self._acc_dist_m = [], 0.0
-        return self._feed(mean)
+        return self._feed(MatchSample.of_row(mean))
 
-    def _feed(self, x: np.ndarray) -> list[Event]:
+    def _feed(self, s: MatchSample) -> list[Event]:
         self.n_fed += 1
-        self._fed.append(x)
+        self._fed.append(s)
+        prior = None
         if self.navigator_prior and len(self._fed) == self._fed.maxlen:
-            # the navigator's own uncertainty at the window's first sample is the prior of the first state
-            # (RVBMP-2i+prior in BENCHMARKS.md; floored at half a cell so the lattice can still move)
-            cfg = self.matcher.cfg
-            self.matcher.cfg = replace(cfg, prior_sigma_m=float(max(self._fed[0][7], 0.5 * self.cell_m)))
-            self.matcher.name = self.matcher.cfg.name
-        m = self.matcher.feed(float(x[0]), x[1:3], x[3:5], float(x[5]))
+            prior = float(max(self._fed[0].sigma_h_m, 0.5 * self.cell_m))
+            self.matcher_name = self.matcher.method_name(prior)
+        m = self.matcher.feed(s.t_s, (s.north_m, s.east_m), (s.vel_n_mps, s.vel_e_mps), s.gravity_mgal,
+                              prior_sigma_m=prior)
         if m is None:
             return []
         nan = math.nan
         if not m.ok:
             self.n_failed += 1
-            return [MatchRecord(float(x[0]), False, m.method, nan, nan, nan, nan, nan, float(m.quality), m.reason,
+            return [MatchRecord(s.t_s, False, m.method, nan, nan, nan, nan, nan, float(m.quality), m.reason,
                                 float(m.compute_time_s))]
         self.results.append(m)
         lat, lon, ne = self._to_geodetic(m.position_ne_m)
         sig = float(max(m.sigma_m, self.sigma_floor_m)) if math.isfinite(m.sigma_m) else self.sigma_floor_m
-        win = np.asarray(self._fed)
+        win = np.array([x.as_row() for x in self._fed])
         track_m = float(np.sum(np.hypot(*np.diff(win[:, 1:3], axis=0).T))) if len(win) > 1 else 0.0
         sigma_fed = float(np.sqrt(np.mean(win[:, 6] ** 2)))
         signal = window_signal_mgal(win[:, 5], sigma_fed)
@@ -325,114 +281,20 @@ class GravityMatchStage:
         self.n_fixes += 1
         return [rec, PositionFix(t, lat, lon, sig, sig, self.source)]
 
-    def finish(self) -> list[Event]:
-        return []
-
     def metadata(self) -> dict[str, str]:
         where = ("geographic (lat/lon on the map's own area)" if self.geographic else
                  f"origin_ne_m={tuple(round(v, 1) for v in self.placement.origin_ne_m)} rot={self.placement.rotation_deg:g}")
         acc = self.acceptance
-        return {"matcher": self.matcher.name, "readings_fed": str(self.n_fed), "fixes": str(self.n_fixes),
+        return {"matcher": self.matcher_name, "readings_fed": str(self.n_fed), "fixes": str(self.n_fixes),
                 "failed": str(self.n_failed), "rejected": str(self.n_rejected), "sigma_floor_m": f"{self.sigma_floor_m:g}",
                 "cell_m": f"{self.cell_m:g}", "feed_spacing_m": str(self.feed_spacing_m), "placement": where,
                 "navigator_prior": str(self.navigator_prior),
                 "acceptance": (f"min_track_cells={acc.min_track_cells:g} min_signal_ratio={acc.min_signal_ratio:g}"
                                if acc else "none")}
 
-
-@dataclass(frozen=True, slots=True)
-class NavError(Event):
-    """Horizontal error vs a withheld GNSS fix (truth), for the fused state and the last GPS_INPUT built."""
-
-    since_cut_s: float
-    fused_error_m: float
-    injected_error_m: float
-    topic: ClassVar[str] = "/gravity/error"
-
-
-class DenialErrorStage:
-    """Error of the fused and injected positions against the withheld GNSS fixes after the cut.
-
-    Each truth fix is compared with the fused state / GPS_INPUT interpolated to its time (computed at the end
-    of the run; the records are emitted from finish())."""
-
-    def __init__(self, denial: GnssDenial) -> None:
-        self.denial = denial
-        self._frame: LocalFrame | None = None
-        self._truth: list[tuple[float, float, float]] = []
-        self._fused: list[tuple[float, float, float]] = []
-        self._inj: list[tuple[float, float, float]] = []
-        self.errors: list[NavError] = []
-
-    def process(self, item: Any) -> list[Event]:
-        if isinstance(item, FrameInfo):
-            self._frame = _frame_of(item)
-        elif self._frame is None:
-            return []
-        elif isinstance(item, FusedState):
-            if self.denial.t_cut_s is not None and item.t_s >= self.denial.t_cut_s - 1.0:
-                self._fused.append((item.t_s, *self._frame.to_ned_m(item.lat_deg, item.lon_deg, item.alt_msl_m)[:2]))
-        elif isinstance(item, GpsInputRecord):
-            if self.denial.t_cut_s is not None and item.t_s >= self.denial.t_cut_s - 1.0:
-                self._inj.append((item.t_s, *self._frame.to_ned_m(item.lat_deg, item.lon_deg, item.alt_msl_m)[:2]))
-        elif self.denial.withheld(item) and item.has_position and item.instance == 0:
-            self._truth.append((item.t_s, *self._frame.to_ned_m(item.lat_deg, item.lon_deg, item.alt_msl_m or 0.0)[:2]))
-        return []
-
-    def finish(self) -> list[Event]:
-        if not self._truth:
-            return []
-        tr = np.asarray(self._truth)
-        errs = [_interp_error(np.asarray(x).reshape(-1, 3), tr) for x in (self._fused, self._inj)]
-        t0 = self.denial.t_cut_s
-        self.errors = [NavError(float(t), float(t - t0), float(ef), float(ei)) for t, ef, ei in zip(tr[:, 0], *errs)]
-        return list(self.errors)
-
-    def table(self, every_s: float = 60.0) -> list[tuple[float, float, float]]:
-        """(minutes since the cut, fused error m, injected error m): the truth fix nearest each mark."""
-        if not self.errors:
-            return []
-        ts = np.array([e.since_cut_s for e in self.errors])
-        rows = []
-        for mark in np.arange(0.0, ts[-1] + 1e-9, every_s):
-            i = int(np.argmin(np.abs(ts - mark)))
-            rows.append((float(ts[i] / 60.0), self.errors[i].fused_error_m, self.errors[i].injected_error_m))
-        if rows and rows[-1][0] * 60.0 < ts[-1] - 1.0:
-            rows.append((float(ts[-1] / 60.0), self.errors[-1].fused_error_m, self.errors[-1].injected_error_m))
-        return rows
-
-    def summary_lines(self, every_s: float = 60.0) -> list[str]:
-        if not self.errors:
-            return ["gravity      no withheld GNSS fix to compare with"]
-        fe = np.array([e.fused_error_m for e in self.errors])
-        ie = np.array([e.injected_error_m for e in self.errors])
-        lines = [f"gravity      horizontal error vs withheld GNSS after the cut ({len(self.errors)} fixes): "
-                 f"fused mean {np.nanmean(fe):.1f} m, max {np.nanmax(fe):.1f} m; injected mean "
-                 f"{_nanmean(ie):.1f} m",
-                 "gravity        min after cut   fused err m   injected err m"]
-        lines += [f"gravity        {m:13.2f}   {a:11.1f}   {b:14.1f}" for m, a, b in self.table(every_s)]
-        return lines
-
-
-def _nanmean(x: np.ndarray) -> float:
-    return float(np.nanmean(x)) if np.any(np.isfinite(x)) else math.nan
-
-
-def _interp_error(est: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    """|est(t) - truth(t)| at the truth times, est linearly interpolated (NaN outside its span or gaps > 1 s)."""
-    out = np.full(truth.shape[0], np.nan)
-    if est.shape[0] < 2:
-        return out
-    t = truth[:, 0]
-    inside = (t >= est[0, 0]) & (t <= est[-1, 0])
-    j = np.clip(np.searchsorted(est[:, 0], t), 1, est.shape[0] - 1)
-    gap_ok = est[j, 0] - est[j - 1, 0] <= 1.0
-    n = np.interp(t, est[:, 0], est[:, 1])
-    e = np.interp(t, est[:, 0], est[:, 2])
-    err = np.hypot(n - truth[:, 1], e - truth[:, 2])
-    keep = inside & gap_ok
-    out[keep] = err[keep]
-    return out
+    def summary_lines(self) -> list[str]:
+        return [f"gravity      {self.n_fed} matcher samples ({self.matcher_name}), {self.n_fixes} fixes fused, "
+                f"{self.n_rejected} rejected by the acceptance test, {self.n_failed} failed"]
 
 
 #: Matchers the CLI offers (online, through Matcher.feed).
@@ -457,30 +319,37 @@ def make_matcher(name: str, lmap: LocalGravityMap, sigma_mgal: float = 1.0, cell
     raise ValueError(f"unknown matcher {name!r} (choose from {', '.join(MATCHERS)})")
 
 
-def gravity_stages(lmap: LocalGravityMap, denial: GnssDenial, *, matcher: str = "viterbi",
-                   place_lat_lon: tuple[float, float] | None = None, sigma_mgal: float = 1.0, seed: int = 0,
-                   period_s: float = 1.0, inject_config=None, nav_config: NavigatorConfig | None = None,
-                   acceptance: FixAcceptance | None = FixAcceptance()) -> list:
-    """The replay stages of a gravity-aided run with GNSS denied (see the module docstring), stage 0 first.
+def gravity_replay_pipeline(sink, lmap: LocalGravityMap, denial: GnssDenial, *,
+                            matcher: str | Matcher | None = "viterbi", placement: Placement | None = None,
+                            place_lat_lon: tuple[float, float] | None = None,
+                            gravimeter: SimulatedGravimeter | None = None, simulate_gravimeter: bool = True,
+                            sigma_mgal: float = 1.0, seed: int = 0, period_s: float = 1.0,
+                            sigma_floor_m: float | None = None, inject_config=None,
+                            nav_config: NavigatorConfig | None = None,
+                            acceptance: FixAcceptance | None = FixAcceptance()) -> Pipeline:
+    """The pipeline of a gravity-aided replay with GNSS denied (see the module docstring): the denial in front of
+    the navigator, then the simulated gravimeter, the match stage, the shadow injector and the error stage.
 
-    The flight starts at place_lat_lon on a geographic map (default: the map's centre / local origin)."""
-    from companion.inject import InjectConfig
-
-    if place_lat_lon is not None and lmap.frame is not None:
-        placement = Placement.at_lat_lon(lmap, *place_lat_lon)
-    else:
-        placement = Placement()
+    matcher: a name of `MATCHERS`, a Matcher, or None for the unaided (INS-only) reference. The flight lies on the
+    map by `placement`, else it starts at place_lat_lon on a geographic map (default: the map's centre / local
+    origin). gravimeter: the simulated gravimeter (default: seeded Gaussian noise of sigma_mgal);
+    simulate_gravimeter=False when the event stream brings its own GravityReading events."""
+    if placement is None:
+        placement = Placement.at_lat_lon(lmap, *place_lat_lon) if place_lat_lon is not None and lmap.frame is not None \
+            else Placement()
     n0, e0 = placement.origin_ne_m
     if not math.isfinite(float(lmap.interp_ne(n0, e0))):
         raise ValueError("the flight's start point is off the gravity map (or on a masked cell)")
-    grav = SimulatedGravimeter(lmap, placement, np.random.default_rng(seed), sigma_mgal=sigma_mgal)
-    return [
-        GnssDeniedNavigator(nav_config or gravity_nav_config(), denial),
-        GravitySimStage(grav, denial, period_s),
-        GravityMatchStage(lmap, make_matcher(matcher, lmap, sigma_mgal), placement, acceptance=acceptance),
-        GnssDeniedInjector(inject_config or InjectConfig(mode="shadow"), denial),
-        DenialErrorStage(denial),
-    ]
+    stages: list[Stage] = []
+    if matcher is not None:
+        if simulate_gravimeter:
+            grav = gravimeter or SimulatedGravimeter(lmap, placement, np.random.default_rng(seed), sigma_mgal=sigma_mgal)
+            stages.append(GravitySimStage(grav, period_s))
+        m = make_matcher(matcher, lmap, sigma_mgal) if isinstance(matcher, str) else matcher
+        stages.append(GravityMatchStage(lmap, m, placement, sigma_floor_m=sigma_floor_m, acceptance=acceptance))
+    stages += [Injector(inject_config or InjectConfig(mode="shadow")), DenialErrorStage(denial)]
+    return build_pipeline(sink, nav_config=nav_config or gravity_nav_config(), filters=[GnssDenialStage(denial)],
+                          extra_stages=stages)
 
 
 def live_gravity_stage(config) -> GravityMatchStage:

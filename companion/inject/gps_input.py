@@ -62,6 +62,7 @@ from companion.mavlink.gps_input import (  # noqa: F401 - the wire encoding, re-
     gps_week_from_unix,
 )
 from companion.nav.frame import LocalFrame
+from companion.pipeline.stage import Stage
 
 
 MODES = ("off", "shadow", "inject")
@@ -169,7 +170,7 @@ def _finite(*vals) -> bool:
     return all(isinstance(v, (int, float)) and math.isfinite(v) for v in vals)
 
 
-class Injector:
+class Injector(Stage):
     """Pipeline stage: consumes FusedState (and GnssFix, SystemTime, Reboot), emits GpsInputRecord.
 
     ``sender`` (set by the live runtime) takes the pymavlink message and returns True when it was
@@ -226,9 +227,6 @@ class Injector:
             self._gnss_time = None
             self._last_out_t = None
             return [InjectorState(item.t_s, self._active, "autopilot rebooted")]
-        return []
-
-    def finish(self) -> list[Event]:
         return []
 
     def metadata(self) -> dict[str, str]:

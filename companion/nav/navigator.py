@@ -58,6 +58,7 @@ from companion.nav.outputs import (
 from companion.constants import CHI2_1DOF_999, CHI2_2DOF_999, CHI2_3DOF_999, receiver_sigma
 from companion.events import Attitude, AutopilotAltitude, Event, GnssFix, ImuSample, PositionFix
 from companion.nav.frame import LocalFrame, radii_m
+from companion.pipeline.stage import Stage
 
 
 
@@ -195,7 +196,7 @@ def _skew(v) -> np.ndarray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
-class Navigator:
+class Navigator(Stage):
     """Streaming gap-filling stage: ``process(event) -> list[output]``, then ``finish()``."""
 
     def __init__(self, config: NavigatorConfig | None = None) -> None:
@@ -270,6 +271,10 @@ class Navigator:
             self._handle(heapq.heappop(self._heap)[3])
         out, self._out = self._out, []
         return out
+
+    def metadata(self) -> dict[str, str]:
+        """The mode the navigator ended in and why (INS, or the kinematic fallback)."""
+        return {k: str(v) for k, v in (("mode", self.mode), ("mode_reason", self.mode_reason)) if v}
 
     def finish(self) -> list[Event]:
         """Flush the reorder buffer and emit the remaining outputs up to the last event time."""

@@ -1,16 +1,18 @@
 """The pipeline: source -> stages -> MCAP record, the same objects for replay and for a live link.
 
-A stage is anything with ``process(event) -> list[outputs]`` and ``finish() -> list[outputs]`` (and
-optionally ``metadata() -> dict[str, str]`` and ``summary_lines() -> list[str]``). Outputs are frozen
-dataclasses with ``t_s`` (and a ``topic``), recorded as they come. Later stages see earlier stages'
-outputs as well as the input events, so a predictor's points can feed the integrator.
+A stage is a :class:`companion.pipeline.stage.Stage`: ``process(item) -> list[outputs]``, ``finish()`` and the
+optional hooks. Outputs are frozen dataclasses (companion.events.Event) with ``t_s`` and a ``topic``, recorded as
+they come (unless their type says ``recorded = False``). Later stages see earlier stages' outputs as well as the
+input events, so a predictor's points can feed the integrator; a filter stage (``filters = True``) decides with
+``passes(item)`` which items the stages after it see (a GNSS denial withholds the receiver from the navigator).
 
-Feedback: an output of a later stage (index >= 1) whose type is in ``Pipeline.feedback_types`` (default
-:data:`FEEDBACK_TYPES`: PositionFix, e.g. a gravity-matching fix) is recorded when produced, is *not* passed to
-the stages after its producer in that pass, and is queued; once the current input event has gone through every
-stage, the queue is drained in order, each item running through all stages from stage 0 (the Navigator) like an
-input event (not recorded a second time, not counted in the input stats). Deterministic: the order depends only
-on the event stream. Feedback produced in ``finish()`` is recorded only (the Navigator has already finished).
+Feedback: an output of a stage whose type says ``feedback = True`` (companion.events.PositionFix, e.g. a
+gravity-matching fix) is recorded when produced, is *not* passed to the stages after its producer in that pass,
+and is queued; once the current input event has gone through every stage, the queue is drained in order, each
+item running through all stages from the first (the filters, then the Navigator) like an input event (not
+recorded a second time, not counted in the input stats). Deterministic: the order depends only on the event
+stream. Feedback produced in ``finish()`` is recorded only (the Navigator has already finished); so is feedback
+from the first stage, which would only loop back to itself.
 """
 
 from __future__ import annotations
@@ -24,21 +26,13 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from companion.constants import UERE_M, receiver_sigma
-from companion.events import Event, GnssFix, ImuSample, PositionFix
+from companion.events import Event, GnssFix, ImuSample
+from companion.pipeline.stage import Stage
 from companion.sources.base import Source
 from companion.stats import StreamStats
 
-#: Stage outputs that go back to stage 0 as input events (see the module docstring).
-FEEDBACK_TYPES: tuple[type, ...] = (PositionFix,)
-
 #: Map-panel track of the raw receiver fixes.
 GNSS_MAP_TOPIC = "/map/gnss"
-
-
-class Stage(Protocol):
-    def process(self, item: Any) -> list[Any]: ...
-
-    def finish(self) -> list[Any]: ...
 
 
 class Sink(Protocol):
@@ -57,7 +51,6 @@ class Pipeline:
     sink: Sink | None = None
     stats: StreamStats = field(default_factory=StreamStats)
     outputs: int = 0
-    feedback_types: tuple[type, ...] = FEEDBACK_TYPES
     _feedback: deque = field(default_factory=deque, repr=False)
     _finishing: bool = field(default=False, repr=False)
 
@@ -79,22 +72,25 @@ class Pipeline:
 
     def _run_stages(self, items: Iterable[Any], first: int) -> None:
         for i in range(first, len(self.stages)):
+            stage = self.stages[i]
             produced = []
             for item in items:
-                produced += self.stages[i].process(item)
+                produced += stage.process(item)
             for out in produced:
                 self._emit(out)
             self.outputs += len(produced)
-            if produced and i > 0 and self.feedback_types:
-                fb = [o for o in produced if isinstance(o, self.feedback_types)]
+            if produced and i > 0:
+                fb = [o for o in produced if o.feedback]
                 if fb:
                     if not self._finishing:
                         self._feedback.extend(fb)
-                    produced = [o for o in produced if not isinstance(o, self.feedback_types)]
+                    produced = [o for o in produced if not o.feedback]
+            if stage.filters:
+                items = [item for item in items if stage.passes(item)]
             items = list(items) + produced if produced else items
 
     def _emit(self, item: Any) -> None:
-        if self.sink is not None:
+        if self.sink is not None and item.recorded:
             self.sink.write(item, _instance_topic(item))
             track = _MAP_TRACKS.get(type(item).__name__)
             if track is not None and _finite(item.lat_deg, item.lon_deg, item.alt_msl_m):
@@ -107,8 +103,8 @@ class Pipeline:
             for out in outs:
                 self._emit(out)
             self.outputs += len(outs)
-            if i > 0 and self.feedback_types:
-                outs = [o for o in outs if not isinstance(o, self.feedback_types)]  # recorded only
+            if i > 0:
+                outs = [o for o in outs if not o.feedback]  # recorded only
             if outs:
                 self._run_stages(outs, i + 1)
 
@@ -141,21 +137,19 @@ def _instance_topic(item: Any) -> str | None:
 def build_pipeline(
     sink: Sink | None,
     *,
-    navigate: bool = True,
     nav_config: Any = None,
+    filters: Iterable[Stage] = (),
     extra_stages: Iterable[Stage] = (),
 ) -> Pipeline:
     """The one pipeline wiring used by replay, the live runtime and the benchmarks.
 
-    source events -> navigator (KNN predictor + INS + Kalman integrator, companion.nav) ->
-    extra stages (e.g. the GPS_INPUT injector, which consumes the navigator's FusedState) -> sink.
+    source events -> filters (e.g. a GNSS denial, companion.pipeline.denial) -> navigator (KNN predictor + INS +
+    Kalman integrator, companion.nav) -> extra stages (gravity matching, the GPS_INPUT injector, which consumes
+    the navigator's FusedState, ...) -> sink.
     """
-    stages: list[Stage] = []
-    if navigate:
-        from companion.nav import Navigator
+    from companion.nav import Navigator
 
-        stages.append(Navigator(nav_config))
-    stages += list(extra_stages)
+    stages: list[Stage] = [*filters, Navigator(nav_config), *extra_stages]
     return Pipeline(stages=stages, sink=sink)
 
 

@@ -173,10 +173,8 @@ class Runtime:
 
     def summary_lines(self) -> list[str]:
         lines = []
-        g = self.gravity_stage
-        if g is not None:
-            lines.append(f"gravity      {g.n_fed} matcher samples ({g.matcher.name}), {g.n_fixes} fixes fused, "
-                         f"{g.n_rejected} rejected by the acceptance test, {g.n_failed} failed")
+        if self.gravity_stage is not None:
+            lines += self.gravity_stage.summary_lines()
         ls = ", ".join(f"{k} {v}" for k, v in sorted(self.link.counts.items()))
         lines.append(f"link         {self.link.messages_in} messages in; events: {ls or 'none'}")
         for trig, vals in sorted(self.latency_s.items()):

@@ -1,6 +1,7 @@
 """A simulated gravimeter: the map value at the vehicle's true position plus noise (Gaussian, or real
-ship-minus-satellite residuals), through a `Placement` of the flight on the map; and `SimulatedGravitySource`, an
-async Source of its readings along a list of truth samples (replay and the vehicle simulator)."""
+ship-minus-satellite residuals), through a `Placement` of the flight on the map; `SimulatedGravitySource`, an
+async Source of its readings along a list of truth samples (replay and the vehicle simulator); and
+`GravitySimStage`, the same gravimeter as a pipeline stage reading at the truth a GNSS denial withheld."""
 
 from __future__ import annotations
 
@@ -9,9 +10,15 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from companion.events import GravityReading
+from typing import Any
+
+from companion.events import Event, GravityReading
 from companion.gravity.maps import LocalGravityMap
 from companion.gravity.placement import Placement
+from companion.nav.frame import LocalFrame
+from companion.nav.outputs import FrameInfo
+from companion.pipeline.denial import WithheldFix, frame_of
+from companion.pipeline.stage import Stage
 from companion.sources.base import Source, SourceInfo
 
 
@@ -73,3 +80,31 @@ class SimulatedGravitySource(Source):
 
     def __aiter__(self):
         return self._iter()
+
+
+class GravitySimStage(Stage):
+    """Simulated gravimeter along the GNSS fixes a denial withheld (the truth, companion.pipeline.denial), one
+    reading per `period_s`."""
+
+    def __init__(self, gravimeter: SimulatedGravimeter, period_s: float = 1.0) -> None:
+        self.g, self.period_s = gravimeter, float(period_s)
+        self._frame: LocalFrame | None = None
+        self._next_t = -math.inf
+        self.readings = 0
+
+    def process(self, item: Any) -> list[Event]:
+        if isinstance(item, FrameInfo):
+            self._frame = frame_of(item)
+        elif isinstance(item, WithheldFix) and self._frame is not None:
+            fix = item.fix
+            if fix.has_position and fix.instance == 0 and fix.t_s + 1e-9 >= self._next_t:
+                ne = self._frame.to_ned_m(fix.lat_deg, fix.lon_deg, fix.alt_msl_m or 0.0)[:2]
+                r = self.g.read(fix.t_s, ne)
+                if r is not None:
+                    self._next_t = fix.t_s + self.period_s
+                    self.readings += 1
+                    return [r]
+        return []
+
+    def metadata(self) -> dict[str, str]:
+        return {"readings": str(self.readings), "period_s": f"{self.period_s:g}", "sigma_mgal": f"{self.g.sigma_mgal:g}"}

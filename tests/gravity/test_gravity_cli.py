@@ -6,25 +6,14 @@ import subprocess
 import sys
 
 from companion.events import ImuSample, PositionFix
-from companion.pipeline.core import Pipeline
+from companion.pipeline import Pipeline
+from companion.pipeline.stage import Stage
 from companion.record import iter_payloads, summarize
-from tests.conftest import SAMPLE_LOG, SHARED, require
-
-AK_MAP = SHARED / "data" / "gravity" / "AK_gulf_grav.nc"
-
-
-class _Rec:
-    def __init__(self):
-        self.items = []
-
-    def write(self, item, topic=None):
-        self.items.append(item)
-
-    def write_location(self, *a, **k):
-        pass
+from tests.conftest import AK_MAP, SAMPLE_LOG, require
+from tests.helpers import Collect
 
 
-class _Stage:
+class _Stage(Stage):
     def __init__(self, name, emit_fix=False):
         self.name, self.emit_fix, self.seen = name, emit_fix, []
 
@@ -40,7 +29,7 @@ class _Stage:
 
 def test_feedback_reaches_stage0_once_in_order_and_is_recorded_once():
     s0, s1, s2 = _Stage("nav"), _Stage("grav", emit_fix=True), _Stage("inj")
-    rec = _Rec()
+    rec = Collect()
     p = Pipeline(stages=[s0, s1, s2], sink=rec)
     for k in range(3):
         p.process(ImuSample(float(k), (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), 0))

@@ -9,12 +9,14 @@ import pytest
 from companion.sim.circle import simulate_flight
 from companion.gravity import GravityMap, LocalGravityMap
 from companion.gravity.matchers.li_viterbi import ViterbiConfig, ViterbiMatcher
-from companion.events import GravityReading
+from companion.events import GravityReading, PositionFix
 from companion.gravity.placement import Placement
 from companion.mavlink.gravimeter import NamedValueGravityDecoder
 from companion.sim.gravimeter import SimulatedGravimeter, SimulatedGravitySource
 from companion.sources.gravity import UdpGravitySource, format_gravity_line, parse_gravity_line
-from replay.harness.chain import run_gravity_chain
+from companion.gravity.stage import FixAcceptance, GravityMatchStage, gravity_replay_pipeline
+from companion.pipeline.denial import DenialErrorStage, GnssDenial
+from tests.helpers import Collect
 
 
 def test_line_protocol_round_trip_and_errors():
@@ -97,8 +99,18 @@ def test_chain_gravity_fixes_beat_unaided_ins_after_gnss_denial():
         grav = SimulatedGravimeter(lmap, Placement(), np.random.default_rng(2), sigma_mgal=0.5)
         m = ViterbiMatcher(lmap, ViterbiConfig(n=9, o=3, T=6, alpha=0.05, sigma_z_mgal=0.5, sigma_v_mps=1.5,
                                                subcell_values="interp", prior_sigma_m=15.0), cell_m=10.0) if aided else None
-        r = run_gravity_chain(flight.events, lmap, Placement(), 30.0, m, grav, gravity_period_s=1.0, sigma_floor_m=10.0)
-        assert r.t_s.size > 500 and np.all(np.isfinite(r.nav_ne_m))
-        errs[aided] = (float(np.nanmean(r.error_m)), r.n_fixes_sent)
+        sink = Collect()
+        pipe = gravity_replay_pipeline(sink, lmap, GnssDenial(30.0), matcher=m, placement=Placement(), gravimeter=grav,
+                                       period_s=1.0, sigma_floor_m=10.0, acceptance=FixAcceptance())
+        for ev in flight.events:
+            pipe.process(ev)
+        pipe.finish()
+        errors = next(s for s in pipe.stages if isinstance(s, DenialErrorStage)).errors
+        fused = np.array([e.fused_error_m for e in errors])
+        assert fused.size > 50 and np.all(np.isfinite(fused))
+        n_fixes = sum(isinstance(o, PositionFix) for o in sink.items)
+        if aided:
+            assert n_fixes == next(s for s in pipe.stages if isinstance(s, GravityMatchStage)).n_fixes
+        errs[aided] = (float(np.mean(fused)), n_fixes)
     assert errs[False][1] == 0 and errs[True][1] >= 10
     assert errs[True][0] < 0.8 * errs[False][0], errs

@@ -81,19 +81,18 @@ class _Recording(Matcher):
     """Records what it is fed; every `fix_every` samples answers 'the vehicle is at `answer_ne`' (map metres)."""
 
     name = "recording"
+    supports_prior = True  # as a Viterbi matcher: takes the navigator prior
 
     def __init__(self, lmap, answer_ne, sigma_m=400.0):
-        from companion.gravity.matchers.li_viterbi import ViterbiConfig
-
         super().__init__(lmap, min_len=3, window_len=3, fix_every=3)
-        self.cfg = ViterbiConfig()  # as a Viterbi matcher: takes the navigator prior
-        self.answer_ne, self.sigma_m, self.fed = np.asarray(answer_ne, float), sigma_m, []
+        self.answer_ne, self.sigma_m, self.fed, self.priors = np.asarray(answer_ne, float), sigma_m, [], []
 
-    def feed(self, t_s, ins_ne_m, ins_vel_ne_mps, gravity_mgal):
+    def feed(self, t_s, ins_ne_m, ins_vel_ne_mps, gravity_mgal, *, prior_sigma_m=None):
         self.fed.append((t_s, *np.asarray(ins_ne_m), *np.asarray(ins_vel_ne_mps), gravity_mgal))
-        return super().feed(t_s, ins_ne_m, ins_vel_ne_mps, gravity_mgal)
+        self.priors.append(prior_sigma_m)
+        return super().feed(t_s, ins_ne_m, ins_vel_ne_mps, gravity_mgal, prior_sigma_m=prior_sigma_m)
 
-    def _match(self, window):
+    def _match(self, window, prior_sigma_m=None):
         return MatchResult(True, self.name, float(window.t_s[-1]), self.answer_ne.copy(), self.sigma_m)
 
 
@@ -160,7 +159,8 @@ def test_geographic_stage_uses_lat_lon_averages_readings_and_gates_fixes(accept)
     # the window of the first fix: fed samples 1..3, two stretches of ~3.15 km
     assert recs[0].track_m == pytest.approx(np.hypot(*np.diff(fed[:3, 1:3], axis=0).T).sum())
     # the navigator's sigma_h (5 m here) became the prior of the window's first state, floored at half a cell
-    assert stage.navigator_prior and matcher.cfg.prior_sigma_m == pytest.approx(0.5 * stage.cell_m)
+    assert stage.navigator_prior and matcher.priors[:2] == [None, None]
+    assert matcher.priors[-1] == pytest.approx(0.5 * stage.cell_m)
     assert 6000.0 < recs[0].track_m < 6500.0
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -102,9 +103,18 @@ class Matcher(ABC):
     input, times the call and never lets numpy errors escape. `feed` is the online path: samples are
     buffered, a fix is computed every `fix_every` samples once `min_len` are held, on the last
     `window_len` samples, and passed through the optional speed constraint (continuous matching).
+
+    ``prior_sigma_m`` (of `match` and `feed`): the caller's own 1-sigma horizontal uncertainty of the window's
+    first INS position (the navigator's), for matchers that can use a prior (``supports_prior``; they implement
+    `_match(window, prior_sigma_m)`); the others ignore it.
     """
 
     name = "matcher"
+    #: whether `_match` takes the caller's position prior (see the class docstring)
+    supports_prior: ClassVar[bool] = False
+    #: the matcher's own lattice cell (m), if it has one; its gravimeter noise setting (mGal), if it has one
+    cell_m: float | None = None
+    sigma_z_mgal: float | None = None
 
     def __init__(self, lmap: LocalGravityMap, *, min_len: int, window_len: int, fix_every: int = 1,
                  speed_constraint: SpeedConstraint | None = None):
@@ -122,41 +132,49 @@ class Matcher(ABC):
         self._since_fix = 0
         self._prev: tuple[np.ndarray, np.ndarray, float] | None = None  # (output pos, INS pos, t)
 
+    def method_name(self, prior_sigma_m: float | None = None) -> str:
+        """The name of the method as run with this prior (the results' ``method``)."""
+        return self.name
+
     # ---- batch ----
-    def match(self, window: MatchWindow) -> MatchResult:
+    def match(self, window: MatchWindow, *, prior_sigma_m: float | None = None) -> MatchResult:
         t0 = time.perf_counter()
+        name = self.method_name(prior_sigma_m)
         t_last = float(window.t_s[-1]) if np.size(window.t_s) and np.isfinite(window.t_s[-1]) else float("nan")
         why = window.problem(self.min_len)
         if why:
-            return MatchResult.failed(self.name, t_last, why, time.perf_counter() - t0)
+            return MatchResult.failed(name, t_last, why, time.perf_counter() - t0)
         if len(window) > self.window_len:
             window = window.tail(self.window_len)
         try:
             with np.errstate(all="ignore"):
-                res = self._match(window)
+                res = self._match(window, prior_sigma_m) if self.supports_prior else self._match(window)
         except MatchFailure as exc:
-            return MatchResult.failed(self.name, t_last, str(exc), time.perf_counter() - t0)
+            return MatchResult.failed(name, t_last, str(exc), time.perf_counter() - t0)
         res.compute_time_s = time.perf_counter() - t0
         if res.ok and not np.all(np.isfinite(res.position_ne_m)):
-            return MatchResult.failed(self.name, t_last, "non-finite estimate", res.compute_time_s)
+            return MatchResult.failed(name, t_last, "non-finite estimate", res.compute_time_s)
         return res
 
     @abstractmethod
     def _match(self, window: MatchWindow) -> MatchResult: ...
 
     # ---- online ----
-    def feed(self, t_s: float, ins_ne_m, ins_vel_ne_mps, gravity_mgal: float) -> MatchResult | None:
-        """Add one sample; return a MatchResult when a fix is due, else None."""
+    def feed(self, t_s: float, ins_ne_m, ins_vel_ne_mps, gravity_mgal: float, *,
+             prior_sigma_m: float | None = None) -> MatchResult | None:
+        """Add one sample; return a MatchResult when a fix is due, else None. ``prior_sigma_m``: see the class
+        docstring (the uncertainty of the first sample of the window this sample completes)."""
+        name = self.method_name(prior_sigma_m)
         try:
             n, e = np.asarray(ins_ne_m, float).reshape(2)
             vn, ve = np.asarray(ins_vel_ne_mps, float).reshape(2)
             t_s, gravity_mgal = float(t_s), float(gravity_mgal)
         except (TypeError, ValueError) as exc:
-            return MatchResult.failed(self.name, float("nan"), f"malformed sample dropped ({exc})")
+            return MatchResult.failed(name, float("nan"), f"malformed sample dropped ({exc})")
         if not np.all(np.isfinite([t_s, n, e, vn, ve, gravity_mgal])):
-            return MatchResult.failed(self.name, t_s, "non-finite sample dropped")
+            return MatchResult.failed(name, t_s, "non-finite sample dropped")
         if self._buf and t_s <= self._buf[-1][0]:
-            return MatchResult.failed(self.name, t_s, "sample time not after the previous one; dropped")
+            return MatchResult.failed(name, t_s, "sample time not after the previous one; dropped")
         self._buf.append((float(t_s), n, e, vn, ve, float(gravity_mgal)))
         if len(self._buf) > self.window_len:
             del self._buf[0]
@@ -166,7 +184,7 @@ class Matcher(ABC):
         self._since_fix = 0
         a = np.asarray(self._buf)
         win = MatchWindow(a[:, 0], a[:, 1:3], a[:, 3:5], a[:, 5])
-        res = self.match(win)
+        res = self.match(win, prior_sigma_m=prior_sigma_m)
         if not res.ok:
             return res
         if self.speed_constraint is not None and self._prev is not None:

@@ -40,7 +40,7 @@ turns the end point and its spread into a position measurement instead.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -331,6 +331,8 @@ class ViterbiMatcher(Matcher):
     posterior (exp of the final Viterbi scores), floored at the sub-cell quantisation.
     """
 
+    supports_prior = True
+
     def __init__(self, lmap: LocalGravityMap | None, cfg: ViterbiConfig | None = None, cell_m: float | None = None,
                  cell_map: CellMap | None = None, region_ne_m=None):
         self.cfg = cfg or ViterbiConfig()
@@ -342,11 +344,21 @@ class ViterbiMatcher(Matcher):
                 cell_m = float(np.mean(lmap.cell_size_m()))
             cell_map = CellMap(lmap, cell_m, region_ne_m)
         self.cells = cell_map
+        self.cell_m = float(cell_map.cell_m)
+        self.sigma_z_mgal = float(self.cfg.sigma_z_mgal)
         super().__init__(lmap if lmap is not None else cell_map, min_len=self.cfg.T, window_len=self.cfg.T,
                          fix_every=self.cfg.T, speed_constraint=None)
 
-    def _match(self, window: MatchWindow) -> MatchResult:
-        cfg = self.cfg
+    def _config(self, prior_sigma_m: float | None) -> ViterbiConfig:
+        """The configuration of one match: the caller's prior on the first state, if it gives one (else the
+        configured one)."""
+        return self.cfg if prior_sigma_m is None else replace(self.cfg, prior_sigma_m=float(prior_sigma_m))
+
+    def method_name(self, prior_sigma_m: float | None = None) -> str:
+        return self._config(prior_sigma_m).name
+
+    def _match(self, window: MatchWindow, prior_sigma_m: float | None = None) -> MatchResult:
+        cfg = self._config(prior_sigma_m)
         layers = build_layers(self.cells, window, cfg)
         dt = np.diff(window.t_s)
         disp = window.ins_vel_ne_mps[:-1] * dt[:, None]  # v_{t-1} dt (eq. 9)
@@ -367,7 +379,7 @@ class ViterbiMatcher(Matcher):
         spread = float(np.sqrt((w * ((end_pos - mu) ** 2).sum(axis=1)).sum() / 2.0))
         floor = spacing / np.sqrt(12.0)
         n_states = int(sum(layer.pos.shape[0] for layer in layers))
-        return MatchResult(True, self.name, float(window.t_s[-1]), track[-1].copy(), sigma_m=max(spread, floor),
+        return MatchResult(True, cfg.name, float(window.t_s[-1]), track[-1].copy(), sigma_m=max(spread, floor),
                            quality=-logp, track_ne_m=track, extra={"n_states": n_states, "log_posterior": logp})
 
 
