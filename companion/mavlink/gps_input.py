@@ -3,11 +3,14 @@ GPS time of week, and the ignore flags, all from the dialect (companion.mavlink.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from companion import units
 from companion.constants import GPS_EPOCH_UNIX_S, GPS_LEAP_S, WEEK_S
 from companion.mavlink.dialect import mavlink
+
+if TYPE_CHECKING:
+    from companion.inject.gps_input import GpsInputRecord
 
 IGNORE_ALT = mavlink.GPS_INPUT_IGNORE_FLAG_ALT
 IGNORE_HDOP = mavlink.GPS_INPUT_IGNORE_FLAG_HDOP

@@ -7,11 +7,15 @@ order and good to centimetres within a few kilometres (errors grow as distance^2
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
-from companion.constants import EARTH_RATE_RADPS, WGS84_A_M, WGS84_E2, WGS84_F  # noqa: F401 - re-exported
+from companion.constants import EARTH_RATE_RADPS, WGS84_A_M, WGS84_E2, WGS84_F
+
+__all__ = ["LocalFrame", "radii_m", "normal_gravity_mps2", "EARTH_RATE_RADPS", "WGS84_A_M", "WGS84_E2", "WGS84_F"]
 
 
 def radii_m(lat_rad: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -53,6 +57,29 @@ class LocalFrame:
         e = np.radians(dlon) * rn * np.cos(np.radians(self.ref_lat_deg))
         d = -(alt - self.ref_alt_m)
         return np.stack(np.broadcast_arrays(n, e, d), axis=-1)
+
+    @cached_property
+    def _scalar_scale(self) -> tuple[float, float]:
+        """(meridian radius, prime-vertical radius x cos latitude), both at the reference height, in floats."""
+        rm, rn = (float(x) for x in radii_m(math.radians(self.ref_lat_deg)))
+        return rm + self.ref_alt_m, (rn + self.ref_alt_m) * math.cos(math.radians(self.ref_lat_deg))
+
+    def ned_tuple(self, lat_deg: float, lon_deg: float, alt_m: float) -> tuple[float, float, float]:
+        """Geodetic -> NED metres for one point, in plain floats (the navigator's per-sample path; the same mapping
+        as `to_ned_m` to within rounding)."""
+        rm, rn_cos = self._scalar_scale
+        return (
+            math.radians(lat_deg - self.ref_lat_deg) * rm,
+            math.radians((lon_deg - self.ref_lon_deg + 180.0) % 360.0 - 180.0) * rn_cos,
+            -(alt_m - self.ref_alt_m),
+        )
+
+    def geodetic_tuple(self, n: float, e: float, d: float) -> tuple[float, float, float]:
+        """NED metres -> (lat_deg, lon_deg, alt_m) for one point, in plain floats (inverse of `ned_tuple`)."""
+        rm, rn_cos = self._scalar_scale
+        lat = self.ref_lat_deg + math.degrees(n / rm)
+        lon = (self.ref_lon_deg + math.degrees(e / rn_cos) + 180.0) % 360.0 - 180.0
+        return lat, lon, self.ref_alt_m - d
 
     def to_geodetic(self, ned_m) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """NED metres -> (lat_deg, lon_deg, alt_m)."""

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from companion.events import Event
 from companion.sources.base import Source, SourceError, SourceInfo
-from companion.timebase import ReorderBuffer
+from companion.nav.reorder import ReorderBuffer
 
 DATAFLASH_MAGIC = b"\xa3\x95"
 MAVLINK_STX = (0xFE, 0xFD)

@@ -18,7 +18,7 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from companion.gravity import IccpMatcher, KnnMatcher, MsdSequenceMatcher, SpeedConstraint
+from companion.gravity import IccpMatcher, KnnMatcher, MsdSequenceMatcher
 from companion.gravity.matchers.gao_iccp import equivalence_range_from_noise
 from replay.gravity.areas import AREAS, area_box_ne, area_map, plot_tracks
 from replay.harness.results import RESULTS_DIR, results_file, write_section

@@ -8,7 +8,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.events import Attitude, GnssFix, Reboot
 from companion.mavlink.decode import MavlinkDecoder
-from companion.timebase import ReorderBuffer, VehicleClock
+from companion.nav.reorder import ReorderBuffer
+from companion.timebase import VehicleClock
 
 
 def test_clock_jitter_is_not_a_reboot():

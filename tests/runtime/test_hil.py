@@ -9,10 +9,8 @@ from __future__ import annotations
 import json
 import math
 import signal
-import socket
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 

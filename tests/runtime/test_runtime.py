@@ -4,16 +4,14 @@ reboot, link loss and reconnection, signing, bad frames; and the runtime loop's 
 from __future__ import annotations
 
 import asyncio
-import socket
 import threading
-from dataclasses import replace
 
 import pytest
 
 from tests.conftest import free_port
 from companion.config import LinkConfig, StreamConfig, load_config
 from companion.events import GnssFix, ImuSample, Reboot
-from companion.mavlink.link import MAV_CMD_SET_MESSAGE_INTERVAL, Batch, LinkStatus, MavlinkLink, message_id
+from companion.mavlink.link import Batch, LinkStatus, MavlinkLink, message_id
 from companion.sim.vehicle import Faults, VehicleSim, playback_from_flight
 
 
