@@ -255,7 +255,7 @@ def cmd_run(args) -> int:
 
 
 def cmd_sim(args) -> int:
-    from companion.sim.vehicle import run_sim
+    from companion.sim.vehicle_cli import run_sim
 
     try:
         return run_sim(args)

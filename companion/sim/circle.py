@@ -1,4 +1,5 @@
-"""Synthetic multicopter flight with exact IMU, GNSS and attitude events, for tests with known truth.
+"""An analytic circling multicopter flight with exact IMU, GNSS and attitude events, for tests with known truth
+(the full flight simulator with legs, sensors and MAVLink is companion.sim.flight).
 
 The trajectory is analytic (NED about a reference point): a level circle with a weave in height, yaw
 along the track and small roll/pitch oscillations. The IMU is derived exactly (specific force including
@@ -15,7 +16,7 @@ import numpy as np
 
 from companion.events import Attitude, Event, GnssFix, ImuSample
 from companion.nav.frame import EARTH_RATE_RADPS, LocalFrame, normal_gravity_mps2, radii_m
-from companion.sim.trajectory import dcm_from_euler  # one ZYX Euler -> C_nb for simulator and tests
+from companion.sim.motion import dcm_from_euler  # one ZYX Euler -> C_nb for simulator and tests
 
 REF = (47.4992, 19.1977, 150.0)  # the paper's airfield (Matyasfold), altitude MSL
 
@@ -36,7 +37,7 @@ class SimNoise:
     att_std_yaw_rad: float = 0.1
 
 
-def trajectory(t):
+def circle_trajectory(t):
     """Position, velocity, acceleration (NED), Euler angles and their rates at times t (arrays)."""
     t = np.asarray(t, dtype=float)
     w, r = 0.15, 40.0
@@ -63,7 +64,7 @@ def trajectory(t):
 
 def exact_imu(t, frame: LocalFrame):
     """Exact specific force and angular rate in body FRD at times t."""
-    pos, vel, acc, eul, deul = trajectory(t)
+    pos, vel, acc, eul, deul = circle_trajectory(t)
     lat_deg, _lon, h = frame.to_geodetic(pos)
     lat = np.radians(lat_deg)
     rm, rn = radii_m(lat)
@@ -82,7 +83,7 @@ def exact_imu(t, frame: LocalFrame):
 
 
 @dataclass
-class SimFlight:
+class CircleFlight:
     events: list[Event]
     frame: LocalFrame
     truth_t_s: np.ndarray  # 100 Hz truth
@@ -90,7 +91,7 @@ class SimFlight:
     truth_vel_ned_mps: np.ndarray
 
 
-def simulate_flight(
+def simulate_circle_flight(
     duration_s: float = 60.0,
     rng: np.random.Generator | None = None,
     imu_rate_hz: float = 50.0,
@@ -99,7 +100,7 @@ def simulate_flight(
     noise: SimNoise | None = None,
     t0_s: float = 100.0,
     with_imu: bool = True,
-) -> SimFlight:
+) -> CircleFlight:
     """Events (IMU0, GNSS, attitude) of the synthetic flight, starting at vehicle time ``t0_s``."""
     rng = rng if rng is not None else np.random.default_rng(0)
     nz = noise or SimNoise()
@@ -114,13 +115,13 @@ def simulate_flight(
         for k in range(n):
             events.append(ImuSample(round(t0_s + ti[k], 6), tuple(map(float, f_b[k])), tuple(map(float, w_b[k])), 0))
     ta = np.arange(0, int(duration_s * att_rate_hz) + 1) / att_rate_hz
-    _p, _v, _a, eul, _d = trajectory(ta)
+    _p, _v, _a, eul, _d = circle_trajectory(ta)
     eul = eul + rng.standard_normal(eul.shape) * np.array([nz.att_std_tilt_rad] * 2 + [nz.att_std_yaw_rad])
     for k in range(len(ta)):
         y = (eul[k, 2] + math.pi) % (2 * math.pi) - math.pi
         events.append(Attitude(round(t0_s + ta[k], 6), float(eul[k, 0]), float(eul[k, 1]), float(y)))
     tg = np.arange(0, int(duration_s * gnss_rate_hz) + 1) / gnss_rate_hz
-    pos, vel, *_ = trajectory(tg)
+    pos, vel, *_ = circle_trajectory(tg)
     std = np.array([nz.gnss_std_h_m] * 2 + [nz.gnss_std_v_m])
     if nz.gnss_corr_tau_s > 0:
         a = math.exp(-1.0 / (gnss_rate_hz * nz.gnss_corr_tau_s))
@@ -142,5 +143,5 @@ def simulate_flight(
         ))
     events.sort(key=lambda e: e.t_s)
     tt = np.arange(0, int(duration_s * 100) + 1) / 100.0
-    p, v, *_ = trajectory(tt)
-    return SimFlight(events, frame, t0_s + tt, p, v)
+    p, v, *_ = circle_trajectory(tt)
+    return CircleFlight(events, frame, t0_s + tt, p, v)

@@ -23,7 +23,8 @@ import numpy as np
 
 from companion.constants import G0_MPS2
 from companion.nav.frame import LocalFrame
-from companion.sim.trajectory import BLEND_PEAK, Climb, FlightProfile, Hold, Land, Leg, legs_through_waypoints
+from companion.sim.trajectory import BLEND_PEAK, Climb, FlightProfile, Hold, Land, Leg
+from companion.sim.waypoints import legs_through_waypoints
 
 #: typical survey settings: an aircraft (a 300 km x 100 km box in 3 h) and a survey ship
 AIRCRAFT = {"speed_mps": 150.0, "altitude_m": 300.0, "line_km": 300.0, "spacing_km": 25.0}

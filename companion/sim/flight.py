@@ -38,8 +38,8 @@ from companion.sim.trajectory import (
     Straight,
     Trajectory,
     Turn,
-    legs_through_waypoints,
 )
+from companion.sim.waypoints import legs_through_waypoints
 
 #: ArduPilot SITL's default home: the Canberra Model Aircraft Club field (CMAC), 584 m MSL.
 CANBERRA_FIELD = LocalFrame(ref_lat_deg=-35.3632, ref_lon_deg=149.1652, ref_alt_m=584.0)

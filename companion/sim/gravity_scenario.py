@@ -1,4 +1,6 @@
-"""Scenario simulator for gravity-aided navigation: trajectories, INS drift, gravimeter.
+"""The 2-D Monte Carlo scenario model of the gravity-matching benchmarks: a planar track (`ScenarioTrack`), the
+INS drift along it (psi-angle error model) and the gravimeter (noise, Eotvos). Not the flight simulator
+(companion.sim.flight): no attitude, no IMU samples, no MAVLink; it is what the papers' designs need, fast.
 
 Everything is in metres north/east of a LocalGravityMap frame. Every random draw takes the caller's
 numpy Generator, so a scenario is reproducible from its seed.
@@ -21,7 +23,7 @@ DEGPH_RADPS = np.radians(1.0) / 3600.0
 
 # ---- trajectories --------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class Trajectory:
+class ScenarioTrack:
     t_s: np.ndarray  # (n,)
     pos_ne_m: np.ndarray  # (n, 2)
     vel_ne_mps: np.ndarray  # (n, 2)
@@ -51,7 +53,7 @@ def turn(angle_deg: float, radius_m: float, speed_mps: float) -> Segment:
 
 
 def make_trajectory(speed_mps: float, segments: Sequence[Segment], dt_s: float = 1.0, heading0_deg: float = 90.0,
-                    start_ne_m=(0.0, 0.0)) -> Trajectory:
+                    start_ne_m=(0.0, 0.0)) -> ScenarioTrack:
     """Piecewise constant-curvature track at constant speed (straight: curvature 0)."""
     if speed_mps <= 0 or dt_s <= 0 or not segments:
         raise ValueError("need speed > 0, dt > 0 and at least one segment")
@@ -68,7 +70,7 @@ def make_trajectory(speed_mps: float, segments: Sequence[Segment], dt_s: float =
     vel = speed_mps * np.column_stack([np.cos(heading), np.sin(heading)])
     pos = np.asarray(start_ne_m, float) + np.r_[np.zeros((1, 2)), np.cumsum(0.5 * (vel[1:] + vel[:-1]) * np.diff(t)[:, None], axis=0)]
     acc = rate[:, None] * speed_mps * np.column_stack([-np.sin(heading), np.cos(heading)])
-    return Trajectory(t, pos, vel, acc, heading)
+    return ScenarioTrack(t, pos, vel, acc, heading)
 
 
 # ---- INS error model -----------------------------------------------------------------------------
@@ -96,7 +98,7 @@ class InsOutput:
     accel_bias_mps2: np.ndarray
 
 
-def simulate_ins(traj: Trajectory, lat0_deg: float, model: InsErrorModel, rng: np.random.Generator) -> InsOutput:
+def simulate_ins(traj: ScenarioTrack, lat0_deg: float, model: InsErrorModel, rng: np.random.Generator) -> InsOutput:
     """Propagate the psi-angle error model (Titterton & Weston) along the true trajectory.
 
     dr' = dv;  dv' = f x psi + bias_a^n + noise - (g/R) dr  (Schuler);  psi' = -w_in x psi - bias_g^n - noise,
@@ -197,7 +199,7 @@ class RunData:
     map_true_mgal: np.ndarray
 
 
-def simulate_run(lmap: LocalGravityMap, traj: Trajectory, ins_model: InsErrorModel, grav_model: GravimeterModel,
+def simulate_run(lmap: LocalGravityMap, traj: ScenarioTrack, ins_model: InsErrorModel, grav_model: GravimeterModel,
                  rng: np.random.Generator, residuals_mgal: np.ndarray | None = None,
                  lat_deg_if_local: float = 45.0) -> RunData:
     ins = simulate_ins(traj, lmap.frame.ref_lat_deg if lmap.frame else lat_deg_if_local, ins_model, rng)

@@ -6,7 +6,7 @@ import asyncio
 import numpy as np
 import pytest
 
-from companion.sim.circle import simulate_flight
+from companion.sim.circle import simulate_circle_flight
 from companion.gravity import GravityMap, LocalGravityMap
 from companion.gravity.matchers.li_viterbi import ViterbiConfig, ViterbiMatcher
 from companion.events import GravityReading, PositionFix
@@ -92,7 +92,7 @@ def test_simulated_gravimeter_placement_and_determinism():
 
 
 def test_chain_gravity_fixes_beat_unaided_ins_after_gnss_denial():
-    flight = simulate_flight(120.0, np.random.default_rng(1))
+    flight = simulate_circle_flight(120.0, np.random.default_rng(1))
     lmap = _bumpy_map()
     errs = {}
     for aided in (False, True):

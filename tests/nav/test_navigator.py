@@ -8,7 +8,7 @@ import pytest
 
 from companion.nav.navigator import Navigator, NavigatorConfig, run_navigator
 from companion.nav.outputs import FusedState, MeasurementUpdate, ModeChange, PredictorPoint
-from companion.sim.circle import SimNoise, simulate_flight
+from companion.sim.circle import SimNoise, simulate_circle_flight
 from companion.events import GnssFix, ImuSample
 
 
@@ -39,7 +39,7 @@ def test_ins_filter_is_consistent_nees_per_axis():
     """
     nees = []
     for seed in (11, 12):
-        sim = simulate_flight(60.0, np.random.default_rng(seed), noise=SimNoise(gnss_corr_tau_s=0.0))
+        sim = simulate_circle_flight(60.0, np.random.default_rng(seed), noise=SimNoise(gnss_corr_tau_s=0.0))
         out = run_navigator(sim.events, NavigatorConfig(gnss_sigma_model="accuracy"))
         fused = _fused(out, "ins")
         t, err, cov = _errors(sim, fused)
@@ -51,7 +51,7 @@ def test_ins_filter_is_consistent_nees_per_axis():
 
 
 def test_streaming_with_late_types_equals_batch_replay():
-    sim = simulate_flight(30.0, np.random.default_rng(5))
+    sim = simulate_circle_flight(30.0, np.random.default_rng(5))
     batch = run_navigator(sim.events)
     # arrival order of a real link: GNSS 0.15 s late, attitude 0.05 s late, IMU on time
     delay = {GnssFix: 0.15, ImuSample: 0.0}
@@ -70,7 +70,7 @@ def test_streaming_with_late_types_equals_batch_replay():
 
 
 def test_fused_output_is_10_hz_and_names_measurements():
-    sim = simulate_flight(20.0, np.random.default_rng(2))
+    sim = simulate_circle_flight(20.0, np.random.default_rng(2))
     fused = _fused(run_navigator(sim.events))
     dt = np.diff([o.t_s for o in fused])
     assert np.allclose(dt, 0.1)
@@ -89,7 +89,7 @@ def _inject_glitch(events, t_start, t_end, offset_n_m):
 
 @pytest.mark.parametrize("with_imu", [True, False], ids=["ins", "kinematic"])
 def test_gate_rejects_injected_50_m_glitch(with_imu):
-    sim = simulate_flight(50.0, np.random.default_rng(9), with_imu=with_imu)
+    sim = simulate_circle_flight(50.0, np.random.default_rng(9), with_imu=with_imu)
     t0 = sim.events[0].t_s
     events = _inject_glitch(sim.events, t0 + 30.0, t0 + 32.0, 50.0)
     out = run_navigator(events)
@@ -107,7 +107,7 @@ def test_gate_rejects_injected_50_m_glitch(with_imu):
 
 
 def test_bridges_8_s_blockage_with_ins():
-    sim = simulate_flight(60.0, np.random.default_rng(4), noise=RECEIVER)
+    sim = simulate_circle_flight(60.0, np.random.default_rng(4), noise=RECEIVER)
     t0 = sim.events[0].t_s
     events = [e for e in sim.events if not (isinstance(e, GnssFix) and t0 + 40.0 < e.t_s < t0 + 48.0)]
     out = run_navigator(events)
@@ -121,7 +121,7 @@ def test_bridges_8_s_blockage_with_ins():
 
 @pytest.mark.parametrize("imu_rate,expect", [(50.0, "ins"), (1.2, "kinematic"), (None, "kinematic")])
 def test_mode_selection_and_reason(imu_rate, expect):
-    sim = simulate_flight(20.0, np.random.default_rng(1), imu_rate_hz=imu_rate or 50.0, with_imu=imu_rate is not None,
+    sim = simulate_circle_flight(20.0, np.random.default_rng(1), imu_rate_hz=imu_rate or 50.0, with_imu=imu_rate is not None,
                           noise=RECEIVER)
     nav = Navigator()
     out = []
@@ -171,7 +171,7 @@ def test_sample_flight_tlog_end_to_end_through_its_8_s_outage():
 
 def test_gnss_delay_model_removes_latency_error():
     """Fixes stamped 0.25 s after their epoch (receiver latency): modelling the delay must help."""
-    sim = simulate_flight(40.0, np.random.default_rng(8), noise=SimNoise(gnss_std_h_m=0.3, gnss_std_v_m=0.5))
+    sim = simulate_circle_flight(40.0, np.random.default_rng(8), noise=SimNoise(gnss_std_h_m=0.3, gnss_std_v_m=0.5))
     late = [dataclasses.replace(e, t_s=round(e.t_s + 0.25, 6)) if isinstance(e, GnssFix) else e for e in sim.events]
     rms = []
     for delay in (0.0, 0.25):
@@ -186,10 +186,10 @@ def test_autopilot_heading_offset_is_detected_and_ins_heading_realigned(offset_d
     """An autopilot heading 90 deg off (a compass mounted rotated, as in the Erle PXF log) is detected
     from GNSS velocity changes vs the IMU resolved with the autopilot attitude; the INS heading, which
     starts from the autopilot's, is re-aligned to the true heading. 0 deg: no alarm, no re-alignment."""
-    from companion.sim.circle import trajectory
+    from companion.sim.circle import circle_trajectory
     from companion.events import Attitude
 
-    sim = simulate_flight(60.0, np.random.default_rng(21), noise=RECEIVER)
+    sim = simulate_circle_flight(60.0, np.random.default_rng(21), noise=RECEIVER)
     off = np.radians(offset_deg)
     events = [dataclasses.replace(e, yaw_rad=float((e.yaw_rad + off + np.pi) % (2 * np.pi) - np.pi))
               if isinstance(e, Attitude) else e for e in sim.events]
@@ -202,7 +202,7 @@ def test_autopilot_heading_offset_is_detected_and_ins_heading_realigned(offset_d
     assert nav.ahrs_consistent == (offset_deg == 0.0)
     assert bool(nav.yaw_alignments) == (offset_deg != 0.0)
     fused = [o for o in _fused(out, "ins") if o.t_s > sim.truth_t_s[0] + 20.0]
-    true_yaw = trajectory(np.array([o.t_s - sim.truth_t_s[0] for o in fused]))[3][:, 2]
+    true_yaw = circle_trajectory(np.array([o.t_s - sim.truth_t_s[0] for o in fused]))[3][:, 2]
     yaw_err = (np.array([o.yaw_rad for o in fused]) - true_yaw + np.pi) % (2 * np.pi) - np.pi
     assert np.degrees(np.abs(yaw_err)).max() < 20.0  # yaw is not fused: the KF refines it slowly
     _t, err, _cov = _errors(sim, fused)

@@ -4,7 +4,7 @@ import numpy as np
 
 from companion.nav.navigator import run_navigator
 from companion.nav.outputs import FusedState, MeasurementUpdate
-from companion.sim.circle import SimNoise, simulate_flight
+from companion.sim.circle import SimNoise, simulate_circle_flight
 from companion.events import GnssFix, PositionFix
 
 CUT_S = 20.0
@@ -32,7 +32,7 @@ def _fixes(sim, rng, sigma_m, period_s, t_from, outlier_at=None):
 
 def test_position_fixes_bound_the_error_after_gnss_cut_and_gate_rejects_outlier():
     noise = SimNoise(accel_bias_mps2=(0.08, -0.06, 0.05), gyro_bias_radps=(0.004, -0.003, 0.002))
-    sim = simulate_flight(150.0, np.random.default_rng(3), noise=noise)
+    sim = simulate_circle_flight(150.0, np.random.default_rng(3), noise=noise)
     t0 = sim.events[0].t_s
     events = [e for e in sim.events if not (isinstance(e, GnssFix) and e.t_s > t0 + CUT_S)]
     outlier_t = t0 + 100.0
@@ -65,7 +65,7 @@ def test_autopilot_altitude_holds_the_height_once_gnss_is_gone():
     from companion.events import AutopilotAltitude
 
     noise = SimNoise(accel_bias_mps2=(0.08, -0.06, 0.15), gyro_bias_radps=(0.004, -0.003, 0.002))
-    sim = simulate_flight(150.0, np.random.default_rng(5), noise=noise)
+    sim = simulate_circle_flight(150.0, np.random.default_rng(5), noise=noise)
     t0 = sim.events[0].t_s
     events = [e for e in sim.events if not (isinstance(e, GnssFix) and e.t_s > t0 + CUT_S)]
     rng = np.random.default_rng(11)

@@ -67,7 +67,8 @@ def test_service_process_sends_ready_watchdog_stopping(tmp_path):
     import threading
     import time
 
-    from companion.sim.vehicle import VehicleSim, playback_from_flight
+    from companion.sim.playback import playback_from_flight
+    from companion.sim.vehicle import VehicleSim
 
     srv, path = _server(tmp_path)
     port = free_port()

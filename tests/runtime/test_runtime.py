@@ -12,7 +12,8 @@ from tests.conftest import free_port
 from companion.config import LinkConfig, StreamConfig, load_config
 from companion.events import GnssFix, ImuSample, Reboot
 from companion.mavlink.link import Batch, LinkStatus, MavlinkLink, message_id
-from companion.sim.vehicle import Faults, VehicleSim, playback_from_flight
+from companion.sim.playback import playback_from_flight
+from companion.sim.vehicle import Faults, VehicleSim
 
 
 @pytest.fixture(scope="module")

@@ -22,8 +22,8 @@ from companion.sim.flight import (
 )
 from companion.sim.make_sample import flight_tlog_bytes, truth_csv_text
 from companion.sim.sensors import GnssModel, ImuModel, simulate_imu
+from companion.sim.motion import G_NED_MPS2
 from companion.sim.trajectory import (
-    G_NED_MPS2,
     Climb,
     FlightProfile,
     Hold,
@@ -31,8 +31,8 @@ from companion.sim.trajectory import (
     Speed,
     Straight,
     Turn,
-    legs_through_waypoints,
 )
+from companion.sim.waypoints import legs_through_waypoints
 
 REPO = Path(__file__).resolve().parents[2]
 SAMPLE = REPO / "logs" / "sample_flight.tlog"

@@ -16,7 +16,8 @@ from companion.gravity import GravityMap, LocalGravityMap
 from tests.conftest import TASMAN_MAP, free_port, require
 from companion.sim.cruise import SHIP, cruise_profile, survey_waypoints
 from companion.sim.flight import CANBERRA_FIELD, SimConfig, sample_profile, simulate_flight
-from companion.sim.vehicle import Faults, LazyItems, VehicleSim, gravity_readings, playback_from_flight
+from companion.sim.playback import LazyItems, gravity_readings, playback_from_flight
+from companion.sim.vehicle import Faults, VehicleSim
 
 ORIGIN = LocalFrame(-40.5, 155.6, 0.0)
 
