@@ -1,4 +1,4 @@
-"""GNSS blockage harness and gap-filling benchmark (issue 3; method of Aziez et al. 2021).
+"""GNSS blockage harness and gap-filling benchmark (method of Aziez et al. 2021).
 
 Replays the shared real logs, optionally decimates GNSS to 1 Hz as in the paper, injects GNSS blockages
 of 1, 4, 8 s (the paper) and 15, 30 s (beyond it) at many airborne start times, and scores each method
@@ -405,7 +405,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         cmd = "nice -n 10 .venv/bin/python -m replay.gap_filling " + " ".join(argv if argv is not None else sys.argv[1:])
-        args.out.write_text(f"# GNSS gap filling benchmark (issue 3)\n\nCommand (repository root):\n\n    {cmd}\n\n"
+        args.out.write_text(f"# GNSS gap filling benchmark\n\nCommand (repository root):\n\n    {cmd}\n\n"
                             + NOTES + "\n" + text + "\n")
     if args.plots:
         _plot(args.plots, pooled, args.lengths)

@@ -3,14 +3,11 @@ GPS time of week, and the ignore flags, all from the dialect (companion.mavlink.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from companion import units
 from companion.constants import GPS_EPOCH_UNIX_S, GPS_LEAP_S, WEEK_S
 from companion.mavlink.dialect import mavlink
-
-if TYPE_CHECKING:
-    from companion.inject.gps_input import GpsInputRecord
 
 IGNORE_ALT = mavlink.GPS_INPUT_IGNORE_FLAG_ALT
 IGNORE_HDOP = mavlink.GPS_INPUT_IGNORE_FLAG_HDOP
@@ -32,8 +29,8 @@ def gps_week_from_unix(unix_s: float) -> tuple[int, int]:
     return week, ms
 
 
-def encode_gps_input(rec: GpsInputRecord):
-    """The pymavlink GPS_INPUT message for a record; scaled integers through :mod:`companion.units`."""
+def encode_gps_input(rec):
+    """The pymavlink GPS_INPUT message for a record (companion.inject.gps_input.GpsInputRecord); scaled integers through :mod:`companion.units`."""
     lat, lon = units.degE7_from_deg(rec.lat_deg), units.degE7_from_deg(rec.lon_deg)
     if lat == 0 and lon == 0:
         raise ValueError("refusing to encode lat = lon = 0")

@@ -1,4 +1,4 @@
-"""Hours-long survey cruises for the vehicle simulator (issue 6: fly a long GNSS denial over a gravity map).
+"""Hours-long survey cruises for the vehicle simulator (to fly a long GNSS denial over a gravity map).
 
 ``cruise_profile`` builds a lawn-mower survey: a short ground hold, a climb to the survey height, acceleration
 to cruise speed, parallel lines ``line_km`` long and ``spacing_km`` apart flown in alternating directions with

@@ -23,7 +23,7 @@ from companion.gravity.matchers.gao_iccp import equivalence_range_from_noise
 from replay.gravity.areas import AREAS, area_box_ne, area_map, plot_tracks
 from replay.harness.results import RESULTS_DIR, results_file, write_section
 
-from replay.gravity.noise import ship_minus_satellite_mgal
+from companion.sim.gravity_residuals import ship_minus_satellite_mgal
 from companion.sim.gravity_scenario import GravimeterModel, InsErrorModel, Segment, make_trajectory, record_by_distance, simulate_run
 
 RESULTS_MD = results_file("gravity_gao")

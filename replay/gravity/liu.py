@@ -2,7 +2,7 @@
 scalar-anomaly variant).
 
 Scenario (paper sec. 4): 7 h track, INS output every 1 s (gyro drift 0.01 deg/h, accelerometer bias 100 ug,
-initial tilt 0.1', heading 0.5', all 1-sigma draws per run, part I's psi-angle INS simulator), the vehicle sails
+initial tilt 0.1', heading 0.5', all 1-sigma draws per run, the psi-angle INS error model of companion.sim.gravity_scenario), the vehicle sails
 south-east for 2 h, turns and sails north-west; INS alone for 2 h, then the filter runs every 10 s with 100
 particles, 20 iterations, 2000 m initial error (1 sigma per axis). Measurements are the map's five tensor
 components at the true position plus white noise of 1 E or 5 E (scalar variant: anomaly + 1 mGal).

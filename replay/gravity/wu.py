@@ -26,7 +26,7 @@ from companion.gravity.data import AK_GULF, TASMAN
 from replay.gravity.areas import load_marine, plot_tracks
 from replay.harness.results import RESULTS_DIR, results_file, write_section
 
-from replay.gravity.noise import ship_minus_satellite_mgal
+from companion.sim.gravity_residuals import ship_minus_satellite_mgal
 from companion.sim.gravity_scenario import GravimeterModel, InsErrorModel, Segment, make_trajectory, simulate_run
 
 RESULTS_MD = results_file("gravity_wu")

@@ -1,6 +1,6 @@
 """Gravity-aided flight through a long GNSS denial, live: `companion sim` flies an hours-long cruise over a real gravity
 grid and sends the gravimeter as NAMED_VALUE_FLOAT; the real `companion run` process (gravity stage, GPS_INPUT in
-inject mode) keeps injecting; the simulator records every GPS_INPUT with the truth at its time (issue 6 item 4).
+inject mode) keeps injecting; the simulator records every GPS_INPUT with the truth at its time.
 
 Two runs on the same flight and seed, same navigator settings (companion.gravity.stage.gravity_nav_config):
   aided  -- matcher fixes pass the acceptance test and go into the navigator;

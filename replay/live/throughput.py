@@ -68,7 +68,7 @@ def main() -> None:
     print(table)
     if args.out:
         args.out.write_text(
-            "# Ingest and replay throughput (issue 2)\n\nCommand (repository root):\n\n"
+            "# Ingest and replay throughput\n\nCommand (repository root):\n\n"
             f"    .venv/bin/python -m replay.live.throughput --repeat {args.repeat} --out {args.out}\n\n"
             "pymavlink: `mavutil.mavlink_connection(path)` + `recv_match()` over every message (raw decode, "
             "nothing else). Replay: ingest + the full pipeline (KNN predictor, INS, Kalman integrator) + MCAP "

@@ -1,4 +1,4 @@
-"""Gravity maps: loading, bilinear interpolation, masks, statistics (issue 5 part 1)."""
+"""Gravity maps: loading, bilinear interpolation, masks, statistics."""
 
 import numpy as np
 import pytest

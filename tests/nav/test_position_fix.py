@@ -1,4 +1,4 @@
-"""PositionFix: a non-GNSS horizontal position measurement fused by the Navigator (issue 6 item 3)."""
+"""PositionFix: a non-GNSS horizontal position measurement fused by the Navigator."""
 
 import numpy as np
 

@@ -1,4 +1,4 @@
-"""Scenario simulator: trajectories, INS error model, gravimeter, Eotvos (issue 5 part 1)."""
+"""The 2-D gravity scenario model: tracks, INS error model, gravimeter, Eotvos."""
 
 import numpy as np
 import pytest
@@ -90,7 +90,7 @@ def test_simulator_deterministic_by_seed():
 
 def test_residual_noise_mode_uses_real_residuals():
     require(SHARED_GRAVITY)
-    from replay.gravity.noise import ship_minus_satellite_mgal
+    from companion.sim.gravity_residuals import ship_minus_satellite_mgal
 
     res = ship_minus_satellite_mgal()
     assert res.size > 1000 and res.mean() == pytest.approx(1.3, abs=0.15) and res.std() == pytest.approx(5.7, abs=0.2)

@@ -1,4 +1,4 @@
-"""Long survey cruises and the simulated gravimeter on the vehicle simulator's link (issue 6)."""
+"""Long survey cruises and the simulated gravimeter on the vehicle simulator's link."""
 
 from __future__ import annotations
 
