@@ -87,6 +87,17 @@ class LogReader:
     def offset(self) -> int:
         return 0
 
+    def _read_message(self, read):
+        """One message from the log's parser, or None at the end or when the parser fails on corrupt data."""
+        try:
+            msg = read()
+        except Exception as err:  # noqa: BLE001 - pymavlink raises assorted errors on corrupt data
+            self._parse_failed(err)
+            return None
+        if msg is not None:
+            self.messages_read += 1
+        return msg
+
     def _parse_failed(self, err: Exception) -> None:
         """pymavlink choked on a corrupt or truncated stretch: keep what was read, say where."""
         self.info.warnings.append(
@@ -158,15 +169,8 @@ class DataflashReader(LogReader):
         return int(getattr(self._log, "offset", 0))
 
     def _next_events(self) -> list[Event] | None:
-        try:
-            msg = self._log.recv_match(type=self._wanted)
-        except Exception as err:  # noqa: BLE001 - pymavlink raises assorted errors on corrupt data
-            self._parse_failed(err)
-            return None
-        if msg is None:
-            return None
-        self.messages_read += 1
-        return self._decoder.decode(msg)
+        msg = self._read_message(lambda: self._log.recv_match(type=self._wanted))
+        return None if msg is None else self._decoder.decode(msg)
 
     def _final_events(self) -> list[Event]:
         evs = self._decoder.flush()
@@ -201,14 +205,9 @@ class TlogReader(LogReader):
 
     def _next_events(self) -> list[Event] | None:
         while True:
-            try:
-                msg = self._log.recv_msg()
-            except Exception as err:  # noqa: BLE001 - pymavlink raises assorted errors on corrupt data
-                self._parse_failed(err)
-                return None
+            msg = self._read_message(self._log.recv_msg)
             if msg is None:
                 return None
-            self.messages_read += 1
             mtype = msg.get_type()
             if mtype in self._wanted or mtype == "BAD_DATA":
                 return self._decoder.decode(msg, msg._timestamp)

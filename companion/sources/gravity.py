@@ -52,7 +52,24 @@ def format_gravity_line(r: GravityReading) -> str:
 
 
 # ---- live line sources --------------------------------------------------------------------------------
-class UdpGravitySource(Source):
+class _LineSource(Source):
+    """A source of line-protocol readings: bad lines are counted (``bad_lines``), the first 20 listed in the
+    warnings, and skipped."""
+
+    sensor = "line"
+    bad_lines = 0
+
+    def _parse(self, line: str | bytes) -> GravityReading | None:
+        try:
+            return parse_gravity_line(line, self.sensor)
+        except ValueError as exc:
+            self.bad_lines += 1
+            if len(self.info.warnings) < 20:
+                self.info.warnings.append(str(exc))
+            return None
+
+
+class UdpGravitySource(_LineSource):
     """Listen on host:port for line-protocol datagrams (one or more lines each). Bad lines are counted, skipped."""
 
     def __init__(self, host: str = "0.0.0.0", port: int = 14660, sensor: str = "udp"):
@@ -90,13 +107,7 @@ class UdpGravitySource(Source):
             if data is None:
                 return
             for line in data.splitlines():
-                try:
-                    r = parse_gravity_line(line, self.sensor)
-                except ValueError as exc:
-                    self.bad_lines += 1
-                    if len(self.info.warnings) < 20:
-                        self.info.warnings.append(str(exc))
-                    continue
+                r = self._parse(line)
                 if r is not None:
                     yield r
 
@@ -110,7 +121,7 @@ class UdpGravitySource(Source):
         self._queue.put_nowait(None)
 
 
-class SerialGravitySource(Source):
+class SerialGravitySource(_LineSource):
     """Line protocol from a serial port (pyserial, read in a worker thread)."""
 
     def __init__(self, device: str, baud: int = 115200, sensor: str = "serial"):
@@ -130,13 +141,7 @@ class SerialGravitySource(Source):
             raise SourceError(f"cannot open {self.device}: {exc}") from exc
         while self._port is not None:
             line = await asyncio.to_thread(self._port.readline)
-            if not line:
-                continue
-            try:
-                r = parse_gravity_line(line, self.sensor)
-            except ValueError:
-                self.bad_lines += 1
-                continue
+            r = self._parse(line) if line else None
             if r is not None:
                 yield r
 

@@ -21,7 +21,7 @@ from tqdm import tqdm
 from companion.gravity import IccpMatcher, KnnMatcher, MsdSequenceMatcher
 from companion.gravity.matchers.gao_iccp import equivalence_range_from_noise
 from replay.gravity.areas import AREAS, area_box_ne, area_map, plot_tracks
-from replay.harness.results import RESULTS_DIR, results_file, write_section
+from replay.harness.results import RESULTS_DIR, publish, results_file
 
 from companion.sim.gravity_residuals import ship_minus_satellite_mgal
 from companion.sim.gravity_scenario import GravimeterModel, InsErrorModel, Segment, make_trajectory, record_by_distance, simulate_run
@@ -197,10 +197,7 @@ def main(argv=None) -> int:
                     points={m: np.array(r0[m]["pos"]) for m in METHODS} | {"true at match": run.true_ne_m[mi]})
         lines.append(f"Plot (run 0): `replay/results/gravity_gao_{ak}_{nk}_{ik}.png`\n")
     lines.append(f"\nWall time {time.perf_counter() - t_start:.0f} s.\n")
-    text = "\n".join(lines)
-    print(text)
-    if not a.no_write:
-        write_section(RESULTS_MD, "gao", text, TITLE)
+    publish("\n".join(lines), RESULTS_MD, "gao", TITLE, write=not a.no_write)
     return 0
 
 

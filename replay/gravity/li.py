@@ -30,7 +30,7 @@ from companion.gravity.matchers.gao_iccp import IccpMatcher, equivalence_range_f
 from companion.gravity.matchers.gao_knn import SequenceSearchConfig
 from companion.gravity.matchers.li_viterbi import CellMap, ViterbiConfig, ViterbiMatcher
 from replay.gravity.areas import start_ne, tasman_map
-from replay.harness.results import RESULTS_DIR, md_table, results_file, write_section
+from replay.harness.results import RESULTS_DIR, md_table, results_file, save_curves, write_section
 from replay.harness.executor import make_executor
 
 RESULTS_MD = results_file("gravity_li")
@@ -173,23 +173,12 @@ def sweep(ex, jobs: list[tuple], runs: int, seed0: int, label: str) -> list[dict
 
 
 def _plot(curves: dict, path, title):
-    import matplotlib
+    def draw(ax):
+        for name, c in curves.items():
+            if c is not None:
+                ax.plot(np.arange(c.size) * DT_S / 60, c / 1e3, lw=1.2, label=name)
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(8, 4))
-    for name, c in curves.items():
-        if c is not None:
-            ax.plot(np.arange(c.size) * DT_S / 60, c / 1e3, lw=1.2, label=name)
-    ax.set_xlabel("time (min)")
-    ax.set_ylabel("Error_k (km), non-divergent runs")
-    ax.set_title(title, fontsize=10)
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_curves(path, draw, "time (min)", "Error_k (km), non-divergent runs", title)
 
 
 PAPER_T1 = {0.0: (1.2802, 0.5011, 35.38), 0.05: (1.2890, 0.5101, 2.616), 0.1: (1.2786, 0.5219, 2.012), 0.2: (1.5114, 0.5470, 1.505),

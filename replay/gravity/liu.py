@@ -26,7 +26,7 @@ from companion.gravity.gradient import LIU_COMPONENTS, GradientMap
 from companion.gravity.particle import FieldSampler, GravityParticleFilter, PfConfig
 from replay.gravity.areas import AREAS, area_map
 from companion.sim.gravity_scenario import InsErrorModel, Segment, make_trajectory, simulate_ins, turn
-from replay.harness.results import RESULTS_DIR, md_table, results_file, write_section
+from replay.harness.results import RESULTS_DIR, md_table, results_file, save_curves, write_section
 from replay.harness.executor import make_executor
 
 RESULTS_MD = results_file("gravity_liu")
@@ -98,22 +98,11 @@ PAPER = {("gradient", "fine", 1.0): {"gf": 48.15, "apo": 128.56, "pso": 214.23},
 
 
 def _plot(curves, path, title):
-    import matplotlib
+    def draw(ax):
+        for name, (t, e) in curves.items():
+            ax.semilogy(t / 3600.0, np.maximum(e, 1.0), lw=1.0, label=name)
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(8, 4))
-    for name, (t, e) in curves.items():
-        ax.semilogy(t / 3600.0, np.maximum(e, 1.0), lw=1.0, label=name)
-    ax.set_xlabel("time (h)")
-    ax.set_ylabel("RMSE over runs (m)")
-    ax.set_title(title, fontsize=10)
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_curves(path, draw, "time (h)", "RMSE over runs (m)", title)
 
 
 def main(argv=None):

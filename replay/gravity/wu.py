@@ -24,7 +24,7 @@ from tqdm import tqdm
 from companion.gravity import LocalGravityMap, MatchWindow, PatternConfig, RegularMetricMap, RpcmMatcher, TercomMatcher
 from companion.gravity.data import AK_GULF, TASMAN
 from replay.gravity.areas import load_marine, plot_tracks
-from replay.harness.results import RESULTS_DIR, results_file, write_section
+from replay.harness.results import RESULTS_DIR, publish, results_file
 
 from companion.sim.gravity_residuals import ship_minus_satellite_mgal
 from companion.sim.gravity_scenario import GravimeterModel, InsErrorModel, Segment, make_trajectory, simulate_run
@@ -179,10 +179,7 @@ def main(argv=None) -> int:
                  f"MAD (direct, vectorised over placements): median {sp['mad'][0]:.1f} ms, max {sp['mad'][1]:.1f} ms "
                  f"(pattern {sp['msd_cells']} cells). Target <= 50 ms.\n")
     lines.append(f"\nWall time {time.perf_counter() - t0:.0f} s.\n")
-    text = "\n".join(lines)
-    print(text)
-    if not a.no_write:
-        write_section(RESULTS_MD, "wu", text, TITLE)
+    publish("\n".join(lines), RESULTS_MD, "wu", TITLE, write=not a.no_write)
     return 0
 
 

@@ -40,3 +40,29 @@ def md_table(header: list[str], rows: list[list]) -> str:
     out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     out += ["| " + " | ".join(f(v) for v in r) + " |" for r in rows]
     return "\n".join(out)
+
+
+def publish(text: str, path: Path, key: str, title: str, *, write: bool = True) -> None:
+    """Print a benchmark's section and (unless told not to) write it into its results file."""
+    print(text)
+    if write:
+        write_section(path, key, text, title)
+
+
+def save_curves(path: Path, plot_curves, xlabel: str, ylabel: str, title: str) -> None:
+    """A time-series figure: ``plot_curves(ax)`` draws the curves; labels, legend, grid, saved at 110 dpi."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 4))
+    plot_curves(ax)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -7,6 +7,7 @@ from companion.gravity import (IccpMatcher, KnnMatcher, MatchWindow, MsdSequence
                                TercomMatcher)
 from companion.gravity.matchers import Matcher, ViterbiConfig, ViterbiMatcher
 from tests.gravity.test_matchers import LMAP, _window
+from tests.helpers import subclasses
 
 
 def _all_matchers(lmap):
@@ -24,16 +25,9 @@ def _all_matchers(lmap):
     ]
 
 
-def _subclasses(cls):
-    out = set()
-    for sub in cls.__subclasses__():
-        out |= {sub} | _subclasses(sub)
-    return out
-
-
 def test_every_matcher_of_the_package_is_under_contract():
     """A new Matcher subclass in companion.gravity.matchers must join the list above."""
-    product = {c for c in _subclasses(Matcher) if c.__module__.startswith("companion.") and not c.__name__.startswith("_")}
+    product = {c for c in subclasses(Matcher) if c.__module__.startswith("companion.") and not c.__name__.startswith("_")}
     assert product == {type(m) for m in _all_matchers(LMAP)}
 
 

@@ -6,11 +6,9 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import pytest
 
 from companion.events import Event, StatusText
-from companion.gravity import GravityMap, LocalGravityMap
 from companion.gravity.stage import FixAcceptance, GravityMatchStage, gravity_replay_pipeline
 from companion.inject import Injector
 from companion.nav import Navigator
@@ -19,27 +17,13 @@ from companion.pipeline.stage import Stage
 from companion.sim.gravimeter import GravitySimStage
 from companion.sources import read_events
 from tests.conftest import SAMPLE_LOG
-from tests.helpers import Collect
+from tests.helpers import Collect, bumpy_map, subclasses
 
 STAGES = {Navigator, Injector, GravityMatchStage, GnssDenialStage, DenialErrorStage, GravitySimStage}
 
 
-def _subclasses(cls):
-    out = set()
-    for sub in cls.__subclasses__():
-        out |= {sub} | _subclasses(sub)
-    return out
-
-
 def _bumpy_map():
-    rng = np.random.default_rng(5)
-    ax = np.arange(-3000.0, 3001.0, 25.0)
-    N, E = np.meshgrid(ax, ax, indexing="ij")
-    g = np.zeros_like(N)
-    for _ in range(200):
-        c, w = rng.uniform(-3000, 3000, 2), rng.uniform(50, 200)
-        g += rng.normal(0, 20) * np.exp(-((N - c[0]) ** 2 + (E - c[1]) ** 2) / (2 * w * w))
-    return LocalGravityMap(GravityMap(g, ax, ax, "local_m"))
+    return bumpy_map(5, 3000.0, 25.0, 200, (50, 200))
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +43,7 @@ def _run(events):
 
 
 def test_every_stage_of_the_package_is_under_contract_and_in_the_replay_pipeline(events):
-    product = {c for c in _subclasses(Stage) if c.__module__.startswith("companion.")}
+    product = {c for c in subclasses(Stage) if c.__module__.startswith("companion.")}
     assert product == STAGES
     pipe, _ = _run(events[:2000])
     assert {type(s) for s in pipe.stages} == STAGES

@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 from companion.sim.circle import simulate_circle_flight
-from companion.gravity import GravityMap, LocalGravityMap
 from companion.gravity.matchers.li_viterbi import ViterbiConfig, ViterbiMatcher
 from companion.events import GravityReading, PositionFix
 from companion.gravity.placement import Placement
@@ -16,7 +15,7 @@ from companion.sim.gravimeter import SimulatedGravimeter, SimulatedGravitySource
 from companion.sources.gravity import UdpGravitySource, format_gravity_line, parse_gravity_line
 from companion.gravity.stage import FixAcceptance, GravityMatchStage, gravity_replay_pipeline
 from companion.pipeline.denial import DenialErrorStage, GnssDenial
-from tests.helpers import Collect
+from tests.helpers import Collect, bumpy_map
 
 
 def test_line_protocol_round_trip_and_errors():
@@ -64,15 +63,7 @@ def test_udp_source_receives_lines_and_skips_bad_ones():
 
 
 def _bumpy_map(seed=5, half=600.0, cell=5.0):
-    rng = np.random.default_rng(seed)
-    ax = np.arange(-half, half + 1, cell)
-    N, E = np.meshgrid(ax, ax, indexing="ij")
-    g = np.zeros_like(N)
-    for _ in range(300):
-        c = rng.uniform(-half, half, 2)
-        w = rng.uniform(15, 40)
-        g += rng.normal(0, 20) * np.exp(-((N - c[0]) ** 2 + (E - c[1]) ** 2) / (2 * w * w))
-    return LocalGravityMap(GravityMap(g, ax, ax, "local_m"))
+    return bumpy_map(seed, half, cell, 300, (15, 40))
 
 
 def test_simulated_gravimeter_placement_and_determinism():

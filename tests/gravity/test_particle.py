@@ -4,22 +4,14 @@ error on a synthetic map with zero measurement noise; the 12-state INS error mod
 import numpy as np
 import pytest
 
-from companion.gravity import GravityMap, LocalGravityMap
 from companion.gravity.gradient import LIU_COMPONENTS, GradientMap
 from companion.gravity.particle import (FieldSampler, GravityParticleFilter, PfConfig, discretise,
                                          ins_error_matrix)
+from tests.helpers import bumpy_map
 
 
 def _synthetic_gradient_map(seed=11, half_m=40_000.0, cell_m=500.0) -> GradientMap:
-    rng = np.random.default_rng(seed)
-    ax = np.arange(-half_m, half_m + 1, cell_m)
-    N, E = np.meshgrid(ax, ax, indexing="ij")
-    g = np.zeros_like(N)
-    for _ in range(250):
-        c = rng.uniform(-half_m, half_m, 2)
-        w = rng.uniform(1500, 5000)
-        g += rng.normal(0, 20) * np.exp(-((N - c[0]) ** 2 + (E - c[1]) ** 2) / (2 * w**2))
-    lmap = LocalGravityMap(GravityMap(g, ax, ax, "local_m"))
+    lmap = bumpy_map(seed, half_m, cell_m, 250, (1500, 5000))
     r = half_m - 2000
     return GradientMap.from_local_map(lmap, cell_m, (-r, r, -r, r))
 
