@@ -21,17 +21,7 @@ tests and benchmarks use.
 
 from companion.sim.cruise import AIRCRAFT, SHIP, cruise_profile
 from companion.sim.flight import SimConfig, SimulatedFlight, sample_flight, sample_profile, simulate_flight
-from companion.sim.trajectory import (
-    Climb,
-    FlightProfile,
-    Hold,
-    Land,
-    Speed,
-    Straight,
-    Trajectory,
-    Turn,
-    Yaw,
-)
+from companion.sim.trajectory import Climb, FlightProfile, Hold, Land, Speed, Straight, Trajectory, Turn, Yaw
 from companion.sim.waypoints import legs_through_waypoints
 
 __all__ = [

@@ -29,16 +29,7 @@ from companion.sim.sensors import (
     simulate_gnss,
     simulate_imu,
 )
-from companion.sim.trajectory import (
-    Climb,
-    FlightProfile,
-    Hold,
-    Land,
-    Speed,
-    Straight,
-    Trajectory,
-    Turn,
-)
+from companion.sim.trajectory import Climb, FlightProfile, Hold, Land, Speed, Straight, Trajectory, Turn
 from companion.sim.waypoints import legs_through_waypoints
 
 #: ArduPilot SITL's default home: the Canberra Model Aircraft Club field (CMAC), 584 m MSL.

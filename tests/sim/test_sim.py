@@ -23,15 +23,7 @@ from companion.sim.flight import (
 from companion.sim.make_sample import flight_tlog_bytes, truth_csv_text
 from companion.sim.sensors import GnssModel, ImuModel, simulate_imu
 from companion.sim.motion import G_NED_MPS2
-from companion.sim.trajectory import (
-    Climb,
-    FlightProfile,
-    Hold,
-    Land,
-    Speed,
-    Straight,
-    Turn,
-)
+from companion.sim.trajectory import Climb, FlightProfile, Hold, Land, Speed, Straight, Turn
 from companion.sim.waypoints import legs_through_waypoints
 
 REPO = Path(__file__).resolve().parents[2]
