@@ -76,7 +76,7 @@ class FixAcceptance:
     A fix is only as good as the map signal the window saw. A slow vehicle (a drone over a few hundred metres of a
     1-4 km altimetry grid) sees a flat field: every position in the search area fits, the matcher returns a confident
     but arbitrary fix, and fusing it drags the navigator away (measured: 4.87 km error aided vs 1.16 km unaided on the
-    ac313 log, replay/results/gravity_part2.md). Two tests, both on the window the matcher used:
+    ac313 log, replay/results/gravity_summary.md). Two tests, both on the window the matcher used:
 
     * track: the INS track over the window is at least ``min_track_cells`` map cells long (fewer cells: the window
       holds fewer independent map values than unknowns);

@@ -16,11 +16,12 @@ import argparse
 import os
 import platform
 import signal
-import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+from replay.live import free_port
 
 REPO = Path(__file__).resolve().parents[2]
 CLI = [sys.executable, "-m", "companion.cli"]
@@ -52,9 +53,7 @@ def main() -> int:
     from companion.record import summarize
 
     args.workdir.mkdir(parents=True, exist_ok=True)
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port()
     sim = subprocess.Popen(
         [*CLI, "sim", "--profile", "circuit", "--loops", "0", "--gnss-hz", "10", "--imu-hz", "50",
          "--listen", f"tcpin:127.0.0.1:{port}"],

@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import json
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -26,6 +25,7 @@ import numpy as np
 from companion.gravity.data import TASMAN, shared_gravity_dir
 from replay.harness.results import RESULTS_DIR as RESULTS
 from replay.harness.results import md_table
+from replay.live import free_port
 
 MAP = shared_gravity_dir() / TASMAN
 CLI = [sys.executable, "-m", "companion.cli"]
@@ -40,15 +40,9 @@ NAV_SETTINGS = {
 }
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def run_once(a, variant: str, work: Path) -> dict:
     """One sim + companion pair; returns the GPS_INPUT records and the companion's summary lines."""
-    port = _free_port()
+    port = free_port()
     rec = work / f"sim_{variant}.jsonl"
     sim_cmd = [*CLI, "sim", "--profile", "cruise", "--hours", a.hours, "--cruise-speed", a.cruise_speed,
                "--origin", a.origin, "--line-km", a.line_km, "--spacing-km", a.spacing_km,
