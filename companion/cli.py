@@ -44,7 +44,7 @@ def _progress_bar(total: int | None, desc: str, quiet: bool):
 
 async def _drive(source, pipeline, recorder, *, realtime_factor, bar) -> str | None:
     """Run to the end or to a signal. Returns the name of the signal that stopped it, or None."""
-    from companion.pipeline import run_source
+    from companion.pipeline.core import run_source
 
     loop = asyncio.get_running_loop()
     task = asyncio.current_task()
@@ -95,12 +95,8 @@ def _finish_record(recorder, source, pipeline, config: dict, stopped_by: str | N
 
 
 def _stage_metadata(stage) -> dict[str, str]:
-    """What a stage says about itself: its own metadata(), plus its mode and the reason for it."""
-    meta = {k: str(v) for k, v in getattr(stage, "metadata", dict)().items()}
-    for attr in ("mode", "mode_reason"):
-        if getattr(stage, attr, None):
-            meta[attr] = str(getattr(stage, attr))
-    return meta
+    """What a stage says about itself (companion.pipeline.stage.Stage.metadata)."""
+    return {k: str(v) for k, v in stage.metadata().items()}
 
 
 def _print_summary(source, pipeline, out: Path, stopped_by: str | None, elapsed_s: float) -> None:
@@ -122,14 +118,15 @@ def _print_summary(source, pipeline, out: Path, stopped_by: str | None, elapsed_
 
 
 def _build_pipeline(recorder, args):
-    from companion.pipeline import build_pipeline
+    from companion.pipeline.core import build_pipeline
 
     if getattr(args, "gravity_map", None) is None:
         if getattr(args, "deny_gnss_after", None) is not None:
             raise UsageError("--deny-gnss-after needs --gravity-map (the gravity-aided replay)")
         return build_pipeline(recorder)
-    from companion.gravity_nav import FixAcceptance, GnssDenial, gravity_stages
-    from companion.matching.maps import LocalGravityMap, MapFormatError, load_grid
+    from companion.gravity.maps import LocalGravityMap, MapFormatError, load_grid
+    from companion.gravity.stage import FixAcceptance, gravity_replay_pipeline
+    from companion.pipeline.denial import GnssDenial
 
     if args.deny_gnss_after is None:
         raise UsageError("--gravity-map needs --deny-gnss-after SECONDS")
@@ -143,12 +140,11 @@ def _build_pipeline(recorder, args):
             raise UsageError(f"--gravity-place {args.gravity_place!r}: expected LAT,LON in degrees") from None
     try:
         lmap = LocalGravityMap.around(load_grid(args.gravity_map))
-        stages = gravity_stages(lmap, GnssDenial(args.deny_gnss_after), matcher=args.matcher, place_lat_lon=place,
-                                sigma_mgal=args.gravity_sigma_mgal, seed=args.gravity_seed,
-                                acceptance=None if args.gravity_accept_all else FixAcceptance())
+        return gravity_replay_pipeline(recorder, lmap, GnssDenial(args.deny_gnss_after), matcher=args.matcher,
+                                       place_lat_lon=place, sigma_mgal=args.gravity_sigma_mgal, seed=args.gravity_seed,
+                                       acceptance=None if args.gravity_accept_all else FixAcceptance())
     except (MapFormatError, ValueError) as err:
         raise UsageError(f"gravity map {args.gravity_map}: {err}") from None
-    return build_pipeline(recorder, navigate=False, extra_stages=stages)
 
 
 def _refuse_overwriting_inputs(out: Path, inputs: list[Path]) -> None:
@@ -162,7 +158,7 @@ def _refuse_overwriting_inputs(out: Path, inputs: list[Path]) -> None:
 
 
 def cmd_replay(args) -> int:
-    from companion.pipeline import wall_time_s
+    from companion.pipeline.core import wall_time_s
     from companion.record import Recorder
     from companion.sources import FileSource
 
@@ -198,7 +194,7 @@ def cmd_replay(args) -> int:
     _print_summary(source, pipeline, out, stopped_by, wall_time_s() - t0)
     if args.gravity_map:
         for stage in pipeline.stages:
-            for line in getattr(stage, "summary_lines", list)():
+            for line in stage.summary_lines():
                 print(line)
     if stopped_by:
         return EXIT_INTERRUPTED
@@ -212,7 +208,7 @@ def _damaged(source) -> bool:
 def cmd_run(args) -> int:
     """The live companion: settings from --config (TOML) with command-line overrides, then the runtime."""
     from companion.config import ConfigError, load_config, parse_override
-    from companion.pipeline import wall_time_s
+    from companion.pipeline.core import wall_time_s
     from companion.record import Recorder, RotatingRecorder
     from companion.runtime import Runtime
 
@@ -271,7 +267,7 @@ def cmd_run(args) -> int:
 
 
 def cmd_sim(args) -> int:
-    from companion.sim.vehicle import run_sim
+    from companion.sim.vehicle_cli import run_sim
 
     try:
         return run_sim(args)
@@ -314,7 +310,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--matcher", choices=("viterbi", "knn", "iccp"), default="viterbi", help="gravity matcher (default viterbi)")
     g.add_argument("--gravity-accept-all", action="store_true",
                    help="fuse every matcher fix; by default a fix is fused only if its window saw map signal over >= 2 "
-                        "map cells of track (companion.gravity_nav.FixAcceptance)")
+                        "map cells of track (companion.gravity.stage.FixAcceptance)")
     r.set_defaults(func=cmd_replay)
 
     n = sub.add_parser("run", help="run on a live MAVLink link (the companion service)")

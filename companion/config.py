@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.inject.gps_input import InjectConfig
+from companion.mavlink.dialect import mavlink
 
 
 class ConfigError(Exception):
@@ -43,7 +44,7 @@ class LinkConfig:
     connect: str = ""  # udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, or a serial device
     baud: int = 115200
     system_id: int = 1  # our system id (ArduPilot convention: the vehicle's own id for onboard components)
-    component_id: int = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
+    component_id: int = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
     target_system: int = 0  # 0: the first autopilot heard
     target_component: int = 0  # 0: the component of that first autopilot heartbeat
     heartbeat_hz: float = 1.0
@@ -76,7 +77,7 @@ class RecordConfig:
 
 @dataclass(frozen=True)
 class GravityConfig:
-    """Gravity-aided navigation on a live vehicle (companion.gravity_nav): gravimeter readings arrive as MAVLink
+    """Gravity-aided navigation on a live vehicle (companion.gravity.stage): gravimeter readings arrive as MAVLink
     NAMED_VALUE_FLOAT(name, value in mGal, time_boot_ms) from the autopilot's system -- an autopilot Lua script's
     gcs:send_named_float or a gravimeter component -- and are matched against ``map``; the fixes go into the
     navigator as position measurements. Off while ``map`` is empty."""
@@ -97,8 +98,8 @@ class Config:
     inject: InjectConfig = field(default_factory=InjectConfig)
     record: RecordConfig = field(default_factory=RecordConfig)
     gravity: GravityConfig = field(default_factory=GravityConfig)
-    #: NavigatorConfig settings (companion.estimation.integrator) to change, e.g. the noise of the vehicle's sensors;
-    #: empty: the defaults (with [gravity]: companion.gravity_nav.gravity_nav_config)
+    #: NavigatorConfig settings (companion.nav.navigator) to change, e.g. the noise of the vehicle's sensors;
+    #: empty: the defaults (with [gravity]: companion.gravity.stage.gravity_nav_config)
     navigator: dict[str, Any] = field(default_factory=dict)
     duration_s: float = 0.0  # stop after this long (0: run until SIGTERM/SIGINT)
 
@@ -115,12 +116,12 @@ class Config:
     def nav_config(self):
         """The NavigatorConfig of the run: defaults (gravity-aided: gravity_nav_config) with [navigator] applied."""
         if self.gravity.map:
-            from companion.gravity_nav import gravity_nav_config
+            from companion.gravity.stage import gravity_nav_config
 
             return gravity_nav_config(**self.navigator)
         if not self.navigator:
             return None
-        from companion.estimation.integrator import NavigatorConfig
+        from companion.nav.navigator import NavigatorConfig
 
         return NavigatorConfig(**self.navigator)
 
@@ -251,7 +252,7 @@ def _streams(table: Any) -> StreamConfig:
 
 def _validate(cfg: Config) -> Config:
     from companion.sources.base import SourceError
-    from companion.sources.live import parse_url
+    from companion.mavlink.address import parse_url
 
     L = cfg.link
     if not L.connect:
@@ -293,7 +294,7 @@ def _validate(cfg: Config) -> Config:
 
 
 def _validate_gravity(g: GravityConfig) -> None:
-    from companion.gravity_nav import MATCHERS
+    from companion.gravity.stage import MATCHERS
 
     if not g.map:
         return
@@ -375,7 +376,7 @@ def load_config(path: str | os.PathLike | None = None, overrides: dict[str, Any]
 
 def _navigator(table: Any) -> dict[str, Any]:
     """[navigator]: scalar NavigatorConfig settings, type-checked against their defaults and then by NavigatorConfig."""
-    from companion.estimation.integrator import NavigatorConfig
+    from companion.nav.navigator import NavigatorConfig
 
     if not isinstance(table, dict):
         raise ConfigError("[navigator] must be a table")
@@ -386,7 +387,7 @@ def _navigator(table: Any) -> dict[str, Any]:
     for k, v in table.items():
         if k not in known:
             raise ConfigError(f"[navigator] unknown setting {k!r} (scalar fields of "
-                              "companion.estimation.integrator.NavigatorConfig)")
+                              "companion.nav.navigator.NavigatorConfig)")
         out[k] = _coerce(f"navigator.{k}", v, getattr(defaults, k))
     try:
         NavigatorConfig(**out)

@@ -20,14 +20,16 @@ from dataclasses import dataclass, fields
 from enum import IntEnum
 from typing import ClassVar
 
+from companion.mavlink.dialect import mavlink
+
 
 class FixType(IntEnum):
     """MAVLink GPS_FIX_TYPE (common.xml); dataflash GPS.Status uses the same numbers."""
 
-    NO_GPS = 0
-    NO_FIX = 1
-    FIX_2D = 2
-    FIX_3D = 3
+    NO_GPS = mavlink.GPS_FIX_TYPE_NO_GPS
+    NO_FIX = mavlink.GPS_FIX_TYPE_NO_FIX
+    FIX_2D = mavlink.GPS_FIX_TYPE_2D_FIX
+    FIX_3D = mavlink.GPS_FIX_TYPE_3D_FIX
     DGPS = 4
     RTK_FLOAT = 5
     RTK_FIXED = 6
@@ -41,6 +43,10 @@ class Event:
 
     t_s: float
     topic: ClassVar[str] = "/events"
+    #: a stage's output of this type goes back to the pipeline's first stage as an input (companion.pipeline.core)
+    feedback: ClassVar[bool] = False
+    #: False for what passes between stages only and is not recorded (e.g. the truth of a GNSS denial)
+    recorded: ClassVar[bool] = True
 
     def to_dict(self) -> dict:
         """Plain dict for JSON; NaN/inf become None (JSON has no NaN), tuples become lists."""
@@ -171,10 +177,15 @@ class Heartbeat(Event):
 
 
 @dataclass(frozen=True, slots=True)
-class GravitySample(Event):
-    """One gravimeter reading: gravity anomaly in mGal (used by the gravity-matching module)."""
+class GravityReading(Event):
+    """One gravimeter reading (anomaly in mGal, Eotvos-corrected unless the sender says otherwise). ``sigma_mgal``
+    is None when the sender gives none. Sources: companion.sources.gravity (line protocol), the link's
+    NAMED_VALUE_FLOAT (companion.mavlink.gravimeter), the simulated gravimeter (companion.sim.gravimeter)."""
 
-    gravity_anomaly_mgal: float
+    gravity_mgal: float
+    sigma_mgal: float | None = None
+    eotvos_corrected: bool = True
+    sensor: str = ""
     topic: ClassVar[str] = "/input/gravity"
 
 
@@ -182,7 +193,8 @@ class GravitySample(Event):
 class PositionFix(Event):
     """A horizontal position measurement that is not GNSS (e.g. a gravity-matching fix), with its own
     1-sigma north/east uncertainty. The Navigator fuses it with its own gate; it never feeds the GNSS
-    predictor. ``source`` names the producer ("gravity:viterbi", ...)."""
+    predictor. ``source`` names the producer ("gravity:viterbi", ...). A stage's PositionFix is fed back to the
+    pipeline's first stages (``feedback``), so the navigator sees it like an input event."""
 
     lat_deg: float
     lon_deg: float
@@ -190,6 +202,7 @@ class PositionFix(Event):
     sigma_e_m: float
     source: str = ""
     topic: ClassVar[str] = "/input/position_fix"
+    feedback: ClassVar[bool] = True  # a measurement for the navigator, which is the pipeline's first stage
 
 
 @dataclass(frozen=True, slots=True)
@@ -211,7 +224,7 @@ EVENT_TYPES: tuple[type[Event], ...] = (
     Reboot,
     StatusText,
     Heartbeat,
-    GravitySample,
+    GravityReading,
     PositionFix,
     AutopilotAltitude,
 )

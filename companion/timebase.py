@@ -7,15 +7,15 @@ into ``t_s``: boot time plus an offset that grows at every reboot by the boot ti
 ``t_s`` keeps increasing through reboots (the downtime itself is unknown and not counted).
 
 Messages of different types can arrive slightly out of time order (each is stamped when its sensor was
-sampled, not when it was written); only a backward jump larger than ``reboot_jump_s`` counts as a reboot.
+sampled, not when it was written); only a backward jump larger than ``reboot_jump_s`` counts as a reboot. Time
+order itself is restored by companion.nav.reorder.ReorderBuffer.
 """
 
 from __future__ import annotations
 
-import heapq
 from dataclasses import dataclass, field
 
-from companion.events import Event, Reboot
+from companion.events import Reboot
 
 
 @dataclass
@@ -77,50 +77,3 @@ class VehicleClock:
             if recv_s is not None:
                 self._last_recv_s = recv_s
         return self.offset_s + boot_s, None
-
-
-@dataclass(order=True)
-class _Item:
-    t_s: float
-    seq: int
-    event: Event = field(compare=False)
-
-
-class ReorderBuffer:
-    """Releases events in time order once they are older than ``horizon_s`` behind the newest.
-
-    Stable for equal times (arrival order kept). ``horizon_s = 0`` passes events straight through.
-    Events that arrive later than the horizon allows are released at once, still in arrival order, and
-    counted in ``late``.
-    """
-
-    def __init__(self, horizon_s: float) -> None:
-        self.horizon_s = horizon_s
-        self._heap: list[_Item] = []
-        self._seq = 0
-        self._newest = float("-inf")
-        self._released = float("-inf")
-        self.late = 0
-
-    def push(self, ev: Event) -> list[Event]:
-        if self.horizon_s <= 0:
-            return [ev]
-        if ev.t_s < self._released:
-            self.late += 1
-        self._seq += 1
-        heapq.heappush(self._heap, _Item(ev.t_s, self._seq, ev))
-        if ev.t_s > self._newest:
-            self._newest = ev.t_s
-        out = []
-        limit = self._newest - self.horizon_s
-        while self._heap and self._heap[0].t_s <= limit:
-            item = heapq.heappop(self._heap)
-            self._released = max(self._released, item.t_s)
-            out.append(item.event)
-        return out
-
-    def flush(self) -> list[Event]:
-        out = [heapq.heappop(self._heap).event for _ in range(len(self._heap))]
-        if out:
-            self._released = max(self._released, out[-1].t_s)
-        return out

@@ -6,8 +6,11 @@ wire can carry (encode(decode(x)) == x for every integer x, tested against pymav
 
 from __future__ import annotations
 
+from companion.constants import G0_MPS2
+
 #: ArduPilot's GRAVITY_MSS, used by RAW_IMU/SCALED_IMU to express acceleration in mG.
-STANDARD_GRAVITY_MPS2 = 9.80665
+STANDARD_GRAVITY_MPS2 = G0_MPS2
+
 
 
 def deg_from_degE7(v: int) -> float:

@@ -13,8 +13,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "replay" / "results"
-ORDER = ["ingest.md", "gap_filling.md", "live.md", "gravity_part1.md", "gravity_part2.md", "gravity_live_aircraft.md",
-         "gravity_live_drone.md", "gravity_live_ship.md"]
+ORDER = ["ingest.md", "gap_filling.md", "live.md", "gravity_summary.md", "gravity_speed.md", "gravity_gao.md",
+         "gravity_wu.md", "gravity_li.md", "gravity_liu.md", "gravity_live_aircraft.md", "gravity_live_drone.md",
+         "gravity_live_ship.md"]
 
 
 def main() -> None:

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from companion.record import iter_payloads, summarize
-from tests.conftest import LOG171, LOG_AC402, LOG_ERLE, LOG_TLOG, REAL_LOGS, SAMPLE_LOG, require
+from tests.conftest import free_port, LOG171, LOG_AC402, LOG_ERLE, LOG_TLOG, REAL_LOGS, SAMPLE_LOG, require
 
 COMPANION = [sys.executable, "-m", "companion.cli"]
 
@@ -143,9 +143,7 @@ def test_replay_sigterm_finalises_record(tmp_path):
 
 
 def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port(socket.SOCK_DGRAM)
 
 
 def _tlog_frames(path: Path, n: int) -> list[bytes]:

@@ -121,7 +121,7 @@ def test_every_numeric_setting_has_a_range_holding_its_default():
     import dataclasses
 
     from companion.config import _SECTIONS, StreamConfig, setting_range
-    from companion.estimation.integrator import NavigatorConfig
+    from companion.nav.config import NavigatorConfig
 
     tables = {**_SECTIONS, "streams": StreamConfig, "navigator": NavigatorConfig}
     checked = 0

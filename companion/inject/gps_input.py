@@ -27,7 +27,7 @@ non-positive or non-finite sigma, or a time not after the previous one is never 
 state (more than ``max_lag_s`` behind the newest sensor event: a navigator catching up after a gap would
 otherwise emit a burst of old positions), nor one that disagrees with a recent 3D fix of the real
 receiver (horizontal distance d with d^2 > ``consistency_chi2`` (sigma_state^2 + sigma_receiver^2) +
-(``receiver_lag_s`` |v|)^2; chi-square 2 dof 99.9 % = 13.8). After such a disagreement nothing is sent
+(``receiver_lag_s`` |v|)^2; chi-square 2 dof 99.9 % = 13.816). After such a disagreement nothing is sent
 until a check passes again. Each refusal is counted and recorded on ``/inject/dropped`` with the reason. Every GPS_INPUT built (sent in ``inject`` mode, or what
 would be sent in ``shadow`` mode) is recorded on ``/inject/gps_input``.
 
@@ -46,24 +46,26 @@ from dataclasses import dataclass, replace
 from typing import Any, ClassVar
 
 from companion import units
-from companion.estimation.outputs import FusedState
+from companion.constants import CHI2_2DOF_999, GPS_EPOCH_UNIX_S, GPS_LEAP_S, UERE_M, WEEK_S, receiver_sigma
+from companion.nav.outputs import FusedState
 from companion.events import Attitude, Event, FixType, GnssFix, ImuSample, Reboot, SystemTime
-from companion.geodesy import LocalFrame
+from companion.mavlink.gps_input import (  # noqa: F401 - the wire encoding, re-exported for the injector's users
+    IGNORE_ALT,
+    IGNORE_HDOP,
+    IGNORE_HORIZONTAL_ACCURACY,
+    IGNORE_SPEED_ACCURACY,
+    IGNORE_VDOP,
+    IGNORE_VEL_HORIZ,
+    IGNORE_VEL_VERT,
+    IGNORE_VERTICAL_ACCURACY,
+    decode_gps_input,
+    encode_gps_input,
+    gps_week_from_unix,
+)
+from companion.nav.frame import LocalFrame
+from companion.pipeline.stage import Stage
 
-#: GPS time = UTC + leap seconds; GPS epoch 1980-01-06T00:00:00Z as a Unix time.
-GPS_EPOCH_UNIX_S = 315964800
-GPS_LEAP_S = 18  # GPS - UTC since 2017-01-01 (IERS bulletin C); change with the next leap second
-WEEK_S = 604800
 MAX_UNIX_S = 4102444800  # 2100-01-01: a later "UTC" is a corrupt clock (and its GPS week overflows uint16)
-
-IGNORE_ALT = 1
-IGNORE_HDOP = 2
-IGNORE_VDOP = 4
-IGNORE_VEL_HORIZ = 8
-IGNORE_VEL_VERT = 16
-IGNORE_SPEED_ACCURACY = 32
-IGNORE_HORIZONTAL_ACCURACY = 64
-IGNORE_VERTICAL_ACCURACY = 128
 
 MODES = ("off", "shadow", "inject")
 ACTIVATIONS = ("backup", "always", "gnss_loss")
@@ -91,7 +93,7 @@ class InjectConfig:
     # the last altitude sent with a smaller sigma_v
     max_v_acc_alt_m: float = 200.0
     satellites: int = 10  # satellites_visible reported with a fix (ArduPilot needs >= 6)
-    uere_m: float = 2.5  # HDOP = sigma_h / uere_m, VDOP = sigma_v / uere_m
+    uere_m: float = UERE_M  # HDOP = sigma_h / uere_m, VDOP = sigma_v / uere_m
     max_speed_mps: float = 80.0  # a faster state is not plausible for the vehicle: not sent
     receiver_instance: int = 0  # the real receiver's GnssFix.instance (for activate = gnss_loss)
     gnss_timeout_s: float = 0.6  # receiver silent this long (vehicle time) counts as lost
@@ -104,7 +106,7 @@ class InjectConfig:
     # GPS_INPUT therefore describes the vehicle at (newest sensor time - autopilot_lag_s): the navigator's state,
     # final only once the reorder window has passed, is carried forward to that epoch at its own velocity
     autopilot_lag_s: float = 0.2
-    consistency_chi2: float = 13.8  # gate of the receiver cross-check (chi-square, 2 dof, 99.9 %)
+    consistency_chi2: float = CHI2_2DOF_999  # gate of the receiver cross-check (chi-square, 2 dof, 99.9 %)
     consistency_window_s: float = 0.5  # cross-check against receiver fixes at most this old
     receiver_lag_s: float = 0.2  # receiver fixes may lag the state by this much (allowance |v| x lag)
 
@@ -182,58 +184,11 @@ class InjectorState(Event):
     topic: ClassVar[str] = "/inject/state"
 
 
-def gps_week_from_unix(unix_s: float) -> tuple[int, int]:
-    """(GPS week, milliseconds of week) for a UTC Unix time."""
-    gps_s = unix_s - GPS_EPOCH_UNIX_S + GPS_LEAP_S
-    week = int(gps_s // WEEK_S)
-    ms = int(round((gps_s - week * WEEK_S) * 1000.0))
-    if ms >= WEEK_S * 1000:
-        week, ms = week + 1, ms - WEEK_S * 1000
-    return week, ms
-
-
-def encode_gps_input(rec: GpsInputRecord):
-    """The pymavlink GPS_INPUT message for a record; scaled integers through :mod:`companion.units`."""
-    from pymavlink.dialects.v20 import ardupilotmega as mav
-
-    lat, lon = units.degE7_from_deg(rec.lat_deg), units.degE7_from_deg(rec.lon_deg)
-    if lat == 0 and lon == 0:
-        raise ValueError("refusing to encode lat = lon = 0")
-    return mav.MAVLink_gps_input_message(
-        rec.time_boot_us, rec.gps_id, rec.ignore_flags, rec.time_week_ms, rec.time_week, rec.fix_type,
-        lat, lon, rec.alt_msl_m, rec.hdop, rec.vdop, rec.vel_n_mps, rec.vel_e_mps, rec.vel_d_mps,
-        rec.speed_acc_mps, rec.h_acc_m, rec.v_acc_m, rec.satellites, rec.yaw_cdeg,
-    )
-
-
-def decode_gps_input(msg) -> dict[str, Any]:
-    """A received GPS_INPUT in SI (for the vehicle simulator and tests)."""
-    return {
-        "time_boot_us": int(msg.time_usec),
-        "gps_id": int(msg.gps_id),
-        "ignore_flags": int(msg.ignore_flags),
-        "time_week": int(msg.time_week),
-        "time_week_ms": int(msg.time_week_ms),
-        "fix_type": int(msg.fix_type),
-        "lat_deg": units.deg_from_degE7(msg.lat),
-        "lon_deg": units.deg_from_degE7(msg.lon),
-        "alt_msl_m": float(msg.alt),
-        "hdop": float(msg.hdop),
-        "vdop": float(msg.vdop),
-        "vel_ned_mps": (float(msg.vn), float(msg.ve), float(msg.vd)),
-        "speed_acc_mps": float(msg.speed_accuracy),
-        "h_acc_m": float(msg.horiz_accuracy),
-        "v_acc_m": float(msg.vert_accuracy),
-        "satellites": int(msg.satellites_visible),
-        "yaw_cdeg": int(msg.yaw),
-    }
-
-
 def _finite(*vals) -> bool:
     return all(isinstance(v, (int, float)) and math.isfinite(v) for v in vals)
 
 
-class Injector:
+class Injector(Stage):
     """Pipeline stage: consumes FusedState (and GnssFix, SystemTime, Reboot), emits GpsInputRecord.
 
     ``sender`` (set by the live runtime) takes the pymavlink message and returns True when it was
@@ -295,9 +250,6 @@ class Injector:
             return [InjectorState(item.t_s, self._active, "autopilot rebooted")]
         return []
 
-    def finish(self) -> list[Event]:
-        return []
-
     def metadata(self) -> dict[str, str]:
         c = self.config
         meta = {"mode": c.mode, "gps_id": str(c.gps_id), "activate": c.activate, "rate_hz": f"{c.rate_hz:g}"}
@@ -323,18 +275,16 @@ class Injector:
         self._last_gnss_t = fix.t_s
         good = fix.fix_type >= FixType.FIX_3D and fix.has_position
         if good and c.floor_to_receiver:
-            h = fix.h_acc_m if fix.h_acc_m is not None else (fix.hdop * c.uere_m if fix.hdop is not None else None)
-            v = fix.v_acc_m if fix.v_acc_m is not None else (fix.vdop * c.uere_m if fix.vdop is not None else None)
-            if h is not None and _finite(h) and h > 0:
+            h, v = receiver_sigma(fix, c.uere_m)
+            if h is not None and _finite(h):
                 self._floor_h_m = h
-            if v is not None and _finite(v) and v > 0:
+            if v is not None and _finite(v):
                 self._floor_v_m = v
         if fix.gps_week is not None and fix.gps_tow_s is not None and _finite(fix.gps_tow_s) and fix.gps_week > 0:
             self._gnss_time = (fix.t_s, int(fix.gps_week), float(fix.gps_tow_s))
         if good:
-            h = fix.h_acc_m if fix.h_acc_m is not None else (fix.hdop * c.uere_m if fix.hdop is not None else c.uere_m)
-            self._rx_fix = (fix.t_s, fix.lat_deg, fix.lon_deg, h if _finite(h) and h > 0 else c.uere_m)
-        if good:
+            h = receiver_sigma(fix, c.uere_m)[0]
+            self._rx_fix = (fix.t_s, fix.lat_deg, fix.lon_deg, h if h is not None and _finite(h) else c.uere_m)
             self._last_good_gnss_t = fix.t_s
         else:
             self._last_bad_gnss_t = fix.t_s

@@ -1,6 +1,6 @@
 """The live companion on a real link: link management (:mod:`.link`), transports, the asyncio runtime."""
 
-from companion.runtime.link import LinkStatus, MavlinkLink
+from companion.mavlink.link import LinkStatus, MavlinkLink
 from companion.runtime.runner import Runtime
 
 __all__ = ["LinkStatus", "MavlinkLink", "Runtime"]

@@ -1,8 +1,8 @@
 """The live companion: one asyncio loop driving the link's events through the shared pipeline.
 
-``Runtime`` wires :class:`~companion.runtime.link.MavlinkLink` -> :func:`companion.pipeline.build_pipeline`
+``Runtime`` wires :class:`~companion.mavlink.link.MavlinkLink` -> :func:`companion.pipeline.core.build_pipeline`
 (the same stages ``companion replay`` uses, plus the GPS_INPUT :class:`~companion.inject.Injector`) ->
-the MCAP recorder. Link events (:class:`~companion.runtime.link.LinkStatus`) are recorded beside the
+the MCAP recorder. Link events (:class:`~companion.mavlink.link.LinkStatus`) are recorded beside the
 pipeline's output and reported to systemd as STATUS; READY is sent once the link manager runs, WATCHDOG
 every half watchdog period while both the loop and the link thread are alive (a hung link thread stops
 the pings and systemd restarts the service).
@@ -24,8 +24,8 @@ from typing import Any
 from companion.config import Config
 from companion.inject.gps_input import GpsInputRecord, Injector
 from companion.notify import Notifier
-from companion.pipeline import Pipeline, build_pipeline
-from companion.runtime.link import Batch, LinkStatus, MavlinkLink
+from companion.pipeline.core import Pipeline, build_pipeline
+from companion.mavlink.link import Batch, LinkStatus, MavlinkLink
 from companion.sources.base import SourceInfo
 
 _STOP = object()
@@ -45,8 +45,8 @@ class Runtime:
         gravity, stages = None, []
         self.gravity_stage = None
         if config.gravity.map:  # gravity-aided: readings from the link, fixes into the navigator
-            from companion.gravity_nav import live_gravity_stage
-            from companion.sources.gravity import NamedValueGravityDecoder
+            from companion.gravity.stage import live_gravity_stage
+            from companion.mavlink.gravimeter import NamedValueGravityDecoder
 
             self.gravity_stage = live_gravity_stage(config.gravity)
             stages.append(self.gravity_stage)
@@ -173,10 +173,8 @@ class Runtime:
 
     def summary_lines(self) -> list[str]:
         lines = []
-        g = self.gravity_stage
-        if g is not None:
-            lines.append(f"gravity      {g.n_fed} matcher samples ({g.matcher.name}), {g.n_fixes} fixes fused, "
-                         f"{g.n_rejected} rejected by the acceptance test, {g.n_failed} failed")
+        if self.gravity_stage is not None:
+            lines += self.gravity_stage.summary_lines()
         ls = ", ".join(f"{k} {v}" for k, v in sorted(self.link.counts.items()))
         lines.append(f"link         {self.link.messages_in} messages in; events: {ls or 'none'}")
         for trig, vals in sorted(self.latency_s.items()):

@@ -1,4 +1,4 @@
-"""Hours-long survey cruises for the vehicle simulator (issue 6: fly a long GNSS denial over a gravity map).
+"""Hours-long survey cruises for the vehicle simulator (to fly a long GNSS denial over a gravity map).
 
 ``cruise_profile`` builds a lawn-mower survey: a short ground hold, a climb to the survey height, acceleration
 to cruise speed, parallel lines ``line_km`` long and ``spacing_km`` apart flown in alternating directions with
@@ -21,8 +21,10 @@ import math
 
 import numpy as np
 
-from companion.geodesy import LocalFrame
-from companion.sim.trajectory import BLEND_PEAK, Climb, FlightProfile, Hold, Land, Leg, legs_through_waypoints
+from companion.constants import G0_MPS2
+from companion.nav.frame import LocalFrame
+from companion.sim.trajectory import BLEND_PEAK, Climb, FlightProfile, Hold, Land, Leg
+from companion.sim.waypoints import legs_through_waypoints
 
 #: typical survey settings: an aircraft (a 300 km x 100 km box in 3 h) and a survey ship
 AIRCRAFT = {"speed_mps": 150.0, "altitude_m": 300.0, "line_km": 300.0, "spacing_km": 25.0}
@@ -36,7 +38,7 @@ _MAX_BANK_DEG = 20.0
 
 def default_turn_radius_m(speed_mps: float, spacing_m: float) -> float:
     """A 20 deg bank turn, at least 60 s per half circle (ships), and small enough for the cross leg."""
-    r = max(speed_mps**2 / (9.80665 * math.tan(math.radians(_MAX_BANK_DEG))), 60.0 * speed_mps / math.pi)
+    r = max(speed_mps**2 / (G0_MPS2 * math.tan(math.radians(_MAX_BANK_DEG))), 60.0 * speed_mps / math.pi)
     return min(r, 0.4 * spacing_m)
 
 

@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from companion.geodesy import LocalFrame
+from companion.mavlink.dialect import mavlink
+from companion.nav.frame import LocalFrame
 from companion.sim.sensors import (
     AttitudeEstimateModel,
     GnssData,
@@ -28,17 +29,8 @@ from companion.sim.sensors import (
     simulate_gnss,
     simulate_imu,
 )
-from companion.sim.trajectory import (
-    Climb,
-    FlightProfile,
-    Hold,
-    Land,
-    Speed,
-    Straight,
-    Trajectory,
-    Turn,
-    legs_through_waypoints,
-)
+from companion.sim.trajectory import Climb, FlightProfile, Hold, Land, Speed, Straight, Trajectory, Turn
+from companion.sim.waypoints import legs_through_waypoints
 
 #: ArduPilot SITL's default home: the Canberra Model Aircraft Club field (CMAC), 584 m MSL.
 CANBERRA_FIELD = LocalFrame(ref_lat_deg=-35.3632, ref_lon_deg=149.1652, ref_alt_m=584.0)
@@ -59,9 +51,9 @@ COPTER_MODES = {
     "POSHOLD": 16,
 }
 
-MAV_SEVERITY_CRITICAL = 2
-MAV_SEVERITY_WARNING = 4
-MAV_SEVERITY_INFO = 6
+MAV_SEVERITY_CRITICAL = mavlink.MAV_SEVERITY_CRITICAL
+MAV_SEVERITY_WARNING = mavlink.MAV_SEVERITY_WARNING
+MAV_SEVERITY_INFO = mavlink.MAV_SEVERITY_INFO
 
 
 #: Sensor sets of generated flights, by name (``companion sim --sensors``): "drone" is the multicopter's MEMS IMU and

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.geodesy import LocalFrame, radii_m
+from companion.nav.frame import LocalFrame, radii_m
 from companion.sim.trajectory import Trajectory
 
 #: Earth magnetic field near Canberra, NED, in milligauss (1 uT = 10 mGauss).

@@ -25,7 +25,7 @@ Earth model (``FlightProfile(..., earth=...)``):
   reference frame's tangent-plane mapping, the accelerometer reads f = a - g with constant g = 9.80665 and the
   gyros the body rate relative to NED. Right for a drone within a few hundred metres for minutes.
 * ``"ellipsoid"``: a rotating WGS84 ellipsoid, the physics a local-level strapdown INS integrates (Groves
-  2013, ch. 5.4; :mod:`companion.estimation.ins`). The analytic NED velocity v and its rate of change a are
+  2013, ch. 5.4; :mod:`companion.nav.ins`). The analytic NED velocity v and its rate of change a are
   the velocity in the local-level frame and its rate of change in that frame. The truth position integrates
   lat' = v_N/(R_M+h), lon' = v_E/((R_N+h) cos lat), h' = -v_D on the pre-integration grid; the
   accelerometer reads f^n = a - g^n(lat, h) + (2 w_ie + w_en) x v (normal gravity with free-air correction)
@@ -42,10 +42,9 @@ from typing import Sequence
 
 import numpy as np
 
-from companion.geodesy import EARTH_RATE_RADPS, WGS84_E2, LocalFrame, normal_gravity_mps2, radii_m
+from companion.nav.frame import WGS84_E2, LocalFrame, radii_m
+from companion.sim.motion import attitude_from_motion, dcm_from_euler, rotating_earth_imu
 
-GRAVITY_MPS2 = 9.80665
-G_NED_MPS2 = np.array([0.0, 0.0, GRAVITY_MPS2])
 _INTERNAL_RATE_HZ = 2000.0
 EARTH_MODELS = ("flat", "ellipsoid")
 
@@ -257,29 +256,6 @@ class Trajectory:
             else:
                 kw[name] = v[sel]
         return Trajectory(**kw)
-
-
-def dcm_from_euler(euler_rad) -> np.ndarray:
-    """C_nb (body FRD -> NED) from ZYX Euler angles (roll, pitch, yaw); shape (..., 3, 3)."""
-    e = np.asarray(euler_rad, dtype=float)
-    cr, sr = np.cos(e[..., 0]), np.sin(e[..., 0])
-    cp, sp = np.cos(e[..., 1]), np.sin(e[..., 1])
-    cy, sy = np.cos(e[..., 2]), np.sin(e[..., 2])
-    c = np.empty(e.shape[:-1] + (3, 3))
-    c[..., 0, 0] = cp * cy
-    c[..., 0, 1] = sr * sp * cy - cr * sy
-    c[..., 0, 2] = cr * sp * cy + sr * sy
-    c[..., 1, 0] = cp * sy
-    c[..., 1, 1] = sr * sp * sy + cr * cy
-    c[..., 1, 2] = cr * sp * sy - sr * cy
-    c[..., 2, 0] = -sp
-    c[..., 2, 1] = sr * cp
-    c[..., 2, 2] = cr * cp
-    return c
-
-
-def wrap_pi(a):
-    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
 
 
 class FlightProfile:
@@ -556,160 +532,3 @@ class FlightProfile:
         end = self.duration_s if t_end_s is None else t_end_s
         n = int(math.floor(end * rate_hz + 1e-9)) + 1
         return self.sample(np.arange(n) / rate_hz)
-
-
-def attitude_from_motion(acc_ned, jerk_ned, yaw, yaw_rate):
-    """Multirotor attitude and body rates from acceleration, jerk, yaw and yaw rate (all NED).
-
-    Body z (down) is aligned with -f / |f|, f = a - g. Returns (euler (N,3), euler rates (N,3),
-    body rates FRD (N,3), specific force FRD (N,3)).
-    """
-    f = np.asarray(acc_ned) - G_NED_MPS2
-    fd = np.asarray(jerk_ned)
-    fn = np.linalg.norm(f, axis=-1)
-    if np.any(fn < 0.5):
-        raise ValueError("commanded acceleration leaves almost no thrust (free fall); fly gentler legs")
-    z = -f / fn[:, None]
-    zd = -(fd / fn[:, None] - f * (np.sum(f * fd, axis=-1) / fn**3)[:, None])
-    c, s = np.cos(yaw), np.sin(yaw)
-    # z in the yaw-rotated frame: q = Rz(-yaw) z = (sin(pitch) cos(roll), -sin(roll), cos(pitch) cos(roll))
-    qx = c * z[:, 0] + s * z[:, 1]
-    qy = -s * z[:, 0] + c * z[:, 1]
-    qz = z[:, 2]
-    dqx = c * zd[:, 0] + s * zd[:, 1] + yaw_rate * (-s * z[:, 0] + c * z[:, 1])
-    dqy = -s * zd[:, 0] + c * zd[:, 1] + yaw_rate * (-c * z[:, 0] - s * z[:, 1])
-    dqz = zd[:, 2]
-    h2 = qx * qx + qz * qz
-    h = np.sqrt(h2)
-    pitch = np.arctan2(qx, qz)
-    roll = np.arctan2(-qy, h)
-    pitch_d = (qz * dqx - qx * dqz) / h2
-    h_d = (qx * dqx + qz * dqz) / h
-    roll_d = (-h * dqy + qy * h_d) / (qy * qy + h2)
-    yaw_w = wrap_pi(yaw)
-    sr, cr = np.sin(roll), np.cos(roll)
-    sp, cp = np.sin(pitch), np.cos(pitch)
-    p = roll_d - yaw_rate * sp
-    q = pitch_d * cr + yaw_rate * sr * cp
-    r = -pitch_d * sr + yaw_rate * cr * cp
-    euler = np.stack([roll, pitch, yaw_w], axis=-1)
-    euler_rate = np.stack([roll_d, pitch_d, yaw_rate * np.ones_like(roll)], axis=-1)
-    rate = np.stack([p, q, r], axis=-1)
-    f_frd = np.einsum("nji,nj->ni", dcm_from_euler(euler), f)  # C_bn f = C_nb^T f
-    return euler, euler_rate, rate, f_frd
-
-
-def earth_rates_ned_radps(lat_rad, height_m, vel_ned_mps) -> tuple[np.ndarray, np.ndarray]:
-    """(w_ie^n, w_en^n), shape (N, 3) each: Earth rate and transport rate in NED (Groves 2013, eqs. 2.123, 5.44)."""
-    lat = np.asarray(lat_rad, dtype=float)
-    v = np.asarray(vel_ned_mps, dtype=float)
-    rm, rn = radii_m(lat)
-    cl, sl = np.cos(lat), np.sin(lat)
-    w_ie = EARTH_RATE_RADPS * np.stack([cl, np.zeros_like(lat), -sl], axis=-1)
-    rnh = rn + height_m
-    w_en = np.stack([v[:, 1] / rnh, -v[:, 0] / (rm + height_m), -v[:, 1] * sl / cl / rnh], axis=-1)
-    return w_ie, w_en
-
-
-def rotating_earth_imu(euler_rad, rate_nb_frd_radps, vel_ned_mps, acc_ned_mps2, lat_rad, height_m):
-    """(specific force FRD, inertial angular rate FRD) on the rotating WGS84 Earth for a given attitude and motion.
-
-    f^n = a^n - g^n(lat, h) + (2 w_ie + w_en) x v^n (Groves 2013, eq. 5.54 solved for f) with normal gravity
-    (:func:`companion.geodesy.normal_gravity_mps2`, as the INS uses), and w_ib^b = w_nb^b + C_bn (w_ie + w_en).
-    """
-    c_nb = dcm_from_euler(euler_rad)
-    v = np.asarray(vel_ned_mps, dtype=float)
-    w_ie, w_en = earth_rates_ned_radps(lat_rad, height_m, v)
-    f_ned = np.asarray(acc_ned_mps2, dtype=float) + np.cross(2.0 * w_ie + w_en, v)
-    f_ned[:, 2] -= normal_gravity_mps2(lat_rad, height_m)
-    f_frd = np.einsum("nji,nj->ni", c_nb, f_ned)
-    rate_ib = np.asarray(rate_nb_frd_radps, dtype=float) + np.einsum("nji,nj->ni", c_nb, w_ie + w_en)
-    return f_frd, rate_ib
-
-
-# ---------------------------------------------------------------------------------------------
-def legs_through_waypoints(
-    waypoints_ne_m: Sequence[Sequence[float]],
-    start_ne_m: Sequence[float],
-    start_heading_deg: float,
-    speed_mps: float,
-    turn_radius_m: float,
-    *,
-    max_accel_mps2: float = 2.0,
-    turn_blend_s: float = 2.0,
-    mode: str | None = None,
-) -> list[Leg]:
-    """Legs that fly from ``start_ne_m`` (at rest, nose at ``start_heading_deg``) through horizontal waypoints.
-
-    The vehicle first yaws on the spot to face the first waypoint, accelerates to ``speed_mps``, flies
-    by the intermediate waypoints with coordinated turns of ``turn_radius_m`` (the path cuts the corner
-    like ArduPilot's waypoint navigation), and stops exactly at the last waypoint. Altitude is unchanged;
-    combine with ``Climb(..., wait=False)`` for climbs along the way.
-    """
-    pts = [np.asarray(start_ne_m, dtype=float)] + [np.asarray(p, dtype=float) for p in waypoints_ne_m]
-    if len(pts) < 2:
-        raise ValueError("need at least one waypoint")
-    dirs, lens = [], []
-    for a, b in zip(pts[:-1], pts[1:]):
-        d = b - a
-        n = float(np.hypot(*d))
-        if n < 1e-6:
-            raise ValueError("consecutive waypoints coincide")
-        dirs.append(math.atan2(d[1], d[0]))
-        lens.append(n)
-    legs: list[Leg] = []
-    dyaw = math.degrees(float(wrap_pi(dirs[0] - math.radians(start_heading_deg))))
-    if abs(dyaw) > 0.01:
-        legs.append(Yaw(dyaw, mode=mode))
-        mode = None
-    accel_dist = speed_mps * BLEND_PEAK * speed_mps / max_accel_mps2 / 2.0  # mean speed V/2 over the blend
-    turns = []  # (angle_deg, a = distance before corner, b = distance after corner)
-    for k in range(1, len(dirs)):
-        ang = float(wrap_pi(dirs[k] - dirs[k - 1]))
-        if abs(ang) < 1e-6:
-            turns.append((0.0, 0.0, 0.0))
-            continue
-        if abs(ang) > math.radians(170.0):
-            raise ValueError(f"waypoint {k}: a {math.degrees(abs(ang)):.0f} deg reversal cannot be flown by; add a waypoint")
-        a, b = _turn_offsets(ang, speed_mps, turn_radius_m, turn_blend_s)
-        turns.append((math.degrees(ang), a, b))
-    legs.append(Speed(speed_mps, max_accel_mps2, mode=mode))
-    before = accel_dist  # distance of the current leg already used
-    for k in range(len(dirs)):
-        after = turns[k][1] if k < len(turns) else accel_dist  # needed at the end of leg k
-        straight = lens[k] - before - after
-        if straight < -1e-6:
-            raise ValueError(
-                f"leg {k} ({lens[k]:.1f} m) is too short for the turn radius / acceleration; "
-                "reduce speed or radius or move the waypoints apart"
-            )
-        if straight > 1e-6:
-            legs.append(Straight(straight))
-        if k < len(turns):
-            ang, _, b = turns[k]
-            if ang != 0.0:
-                legs.append(Turn(ang, turn_radius_m, turn_blend_s))
-            before = b
-    legs.append(Speed(0.0, max_accel_mps2))
-    return legs
-
-
-def _turn_offsets(angle_rad: float, speed_mps: float, radius_m: float, blend_s: float) -> tuple[float, float]:
-    """Distances a (before the corner on the entry line) and b (after, on the exit line) of a blended turn."""
-    rate, blend, hold = _rate_profile(angle_rad, speed_mps / radius_m, blend_s)
-    ch = Channel(0.0)
-    ch.blend(0.0, blend, rate)
-    ch.blend(blend + hold, blend, 0.0)
-    dur = 2 * blend + hold
-    n = max(2000, int(dur * 2000))
-    t = np.linspace(0.0, dur, n + 1)
-    psi = ch.evaluate(t)[3]
-    vx, vy = speed_mps * np.cos(psi), speed_mps * np.sin(psi)
-    dt = t[1] - t[0]
-    dx = float(np.sum(vx[:-1] + vx[1:]) * dt / 2)
-    dy = float(np.sum(vy[:-1] + vy[1:]) * dt / 2)
-    # a * (1, 0) + b * (cos ang, sin ang) = (dx, dy)
-    ca, sa = math.cos(angle_rad), math.sin(angle_rad)
-    b = dy / sa
-    a = dx - b * ca
-    return a, b

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from companion.events import Event
 from companion.sources.base import Source, SourceError, SourceInfo
-from companion.timebase import ReorderBuffer
+from companion.nav.reorder import ReorderBuffer
 
 DATAFLASH_MAGIC = b"\xa3\x95"
 MAVLINK_STX = (0xFE, 0xFD)
@@ -87,6 +87,17 @@ class LogReader:
     def offset(self) -> int:
         return 0
 
+    def _read_message(self, read):
+        """One message from the log's parser, or None at the end or when the parser fails on corrupt data."""
+        try:
+            msg = read()
+        except Exception as err:  # noqa: BLE001 - pymavlink raises assorted errors on corrupt data
+            self._parse_failed(err)
+            return None
+        if msg is not None:
+            self.messages_read += 1
+        return msg
+
     def _parse_failed(self, err: Exception) -> None:
         """pymavlink choked on a corrupt or truncated stretch: keep what was read, say where."""
         self.info.warnings.append(
@@ -119,7 +130,7 @@ class DataflashReader(LogReader):
         super().__init__(path)
         from pymavlink import DFReader
 
-        from companion.sources.dataflash import WANTED, DataflashDecoder
+        from companion.mavlink.dataflash import WANTED, DataflashDecoder
 
         self._wanted = WANTED
         noise = io.StringIO()  # DFReader prints "bad header" lines on stderr; count them instead
@@ -158,15 +169,8 @@ class DataflashReader(LogReader):
         return int(getattr(self._log, "offset", 0))
 
     def _next_events(self) -> list[Event] | None:
-        try:
-            msg = self._log.recv_match(type=self._wanted)
-        except Exception as err:  # noqa: BLE001 - pymavlink raises assorted errors on corrupt data
-            self._parse_failed(err)
-            return None
-        if msg is None:
-            return None
-        self.messages_read += 1
-        return self._decoder.decode(msg)
+        msg = self._read_message(lambda: self._log.recv_match(type=self._wanted))
+        return None if msg is None else self._decoder.decode(msg)
 
     def _final_events(self) -> list[Event]:
         evs = self._decoder.flush()
@@ -184,7 +188,7 @@ class TlogReader(LogReader):
         super().__init__(path)
         from pymavlink import mavutil
 
-        from companion.sources.mavlink_decode import WANTED_TYPES, MavlinkDecoder
+        from companion.mavlink.decode import WANTED_TYPES, MavlinkDecoder
 
         try:
             self._log = mavutil.mavlogfile(str(self.path), notimestamps=False)
@@ -201,14 +205,9 @@ class TlogReader(LogReader):
 
     def _next_events(self) -> list[Event] | None:
         while True:
-            try:
-                msg = self._log.recv_msg()
-            except Exception as err:  # noqa: BLE001 - pymavlink raises assorted errors on corrupt data
-                self._parse_failed(err)
-                return None
+            msg = self._read_message(self._log.recv_msg)
             if msg is None:
                 return None
-            self.messages_read += 1
             mtype = msg.get_type()
             if mtype in self._wanted or mtype == "BAD_DATA":
                 return self._decoder.decode(msg, msg._timestamp)

@@ -1,0 +1,135 @@
+"""The navigator's settings (companion.nav.navigator.Navigator): sensor noise, gates, aids and monitors."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from companion.constants import CHI2_2DOF_999, CHI2_3DOF_999
+from companion.nav.knn_predictor import KnnConfig
+
+
+@dataclass(frozen=True)
+class NavigatorConfig:
+    """Navigator settings. Defaults are for a small ArduPilot multicopter with a u-blox receiver.
+
+    Noise levels: ArduPilot logs its IMU as 50 Hz filtered samples on a vibrating airframe, so the
+    effective white noise is far above the sensor datasheet (per-sample std ~1 m/s^2 and ~0.03 rad/s in
+    the shared logs, i.e. ~0.15 m/s^2/rtHz and ~0.005 rad/s/rtHz). The defaults are twice that: chosen on
+    the shared logs' in-between fill and 4/8 s blockages (replay/gap_filling.py), where they did a few per
+    cent better than 1x; there is no held-out log, so treat that tuning as in-sample.
+    ``predictor_sigma_scale``: a predictor point extrapolates the last fix, so its error is correlated with
+    that fix, which the filter has already used; treating it as independent makes the filter
+    overconfident (position NEES ~2 per axis on simulated flights). Its sigma is scaled by this factor.
+    ``predictor_decorrelate``: the k-th point fused after a fix has its variance multiplied by k: the
+    points of one recursion share the anchor's and the neighbours' error, so 80 points in an 8 s blockage
+    must not count as 80 independent measurements (that pulled the INS towards the predictor's drift).
+    ``gnss_sigma_model``: truth and product frame are the receiver's own solution, whose error wanders
+    slowly (metres over minutes) but is smooth from fix to fix. "short_term" updates with the
+    fix-to-fix noise (``short_term_sigma_*`` x max(1, HDOP)) so the filter follows the receiver instead of
+    averaging it; "accuracy" uses the receiver's accuracy (h_acc, or HDOP x UERE), right for white fix
+    noise. The innovation gate always uses the accuracy sigma, so a glitch is judged on the receiver's own
+    error scale. ``fuse_attitude_yaw``: off by default: in the Erle log the autopilot's heading is ~90 deg
+    from the heading the GNSS-aided INS settles at, and fusing it ruins the fill; the tilt is fused.
+    ``gnss_delay_s``: a fix stamped t describes the vehicle at t - delay (receiver latency; ArduPilot's EKF
+    assumes ~0.2 s for a u-blox). Fixes and predictor points are compared with the INS state of that
+    epoch, kept in a short per-IMU-step history that follows every correction. On the shared logs the
+    IMU accelerations best match the GNSS velocity changes ~0.2 s earlier, but modelling it (0.15 s) helped
+    8 s blockages (3.8 vs 4.0 m) and hurt the 1 Hz in-between fill (0.33 vs 0.29 m), so the default is 0.
+    ``ahrs_check``: the autopilot attitude is only as good as its heading. A DCM AHRS corrects tilt with
+    GNSS acceleration resolved through its heading, so a wrong heading (the Erle PXF log: compass ~90 deg
+    off) also corrupts its roll/pitch during manoeuvres. The navigator checks the autopilot's heading
+    against GNSS, independently of its own INS state: horizontal GNSS velocity changes over
+    >= ``ahrs_check_interval_s`` are compared with the integral of the IMU specific force resolved with
+    the autopilot's attitude over the same interval (gravity and Coriolis have ~no horizontal part);
+    with exponential forgetting (``ahrs_check_tau_s``) the heading offset is the angle of
+    sum(dv_gnss * conj(dv_ahrs)) (complex N + iE), valid once both sums of squares exceed
+    ``ahrs_check_min_dv_mps``^2 and the normalised coherence is >= ``ahrs_check_min_coherence``. If the
+    offset exceeds ``ahrs_max_offset_deg`` the autopilot attitude is declared inconsistent (until the
+    offset falls below ``ahrs_ok_offset_deg``). Its tilt is then fused with a sigma that includes the error
+    a heading offset d induces: the AHRS levels on an acceleration rotated by d, off by 2 sin(d/2) |a_h|,
+    i.e. a tilt error of about 2 sin(d/2) a_rms / g, with a_rms the recent RMS horizontal GNSS
+    acceleration (added in quadrature to ``att_sigma_tilt_rad``). The INS heading, which was
+    initialised from the autopilot, is re-aligned to autopilot heading + offset (a coarse in-motion
+    alignment, cf. Groves 2013 sec. 14.2; the KF's psi is a small-angle state and absorbs a large heading
+    error only slowly) when it differs from that by more than ``yaw_align_min_deg`` and 3 x the KF's yaw
+    sigma; the yaw variance is then reset to ``yaw_align_sigma_rad``^2.
+    ``hold_prior``: during a blockage the INS error grows without bound (t^2 .. t^3), while a loitering or
+    circling multicopter stays near where it was. The navigator learns, causally from the GNSS fixes it has
+    accepted, the vehicle's mean squared displacement per axis after a lag tau (D(tau) at whole-second
+    lags up to ``hold_prior_max_lag_s``, exponential forgetting ``hold_prior_tau_s``): the last fix is then
+    an estimate of the current position with variance D(age) + fix variance, independent of the INS
+    drift. From ``hold_prior_min_age_s`` after the last fix, the output position is the product of the two
+    Gaussians (per axis: inverse-variance weights from the KF covariance and D), so it moves toward the
+    last fix only as far as the filter's own covariance says its drift exceeds the vehicle's typical
+    excursion. Output only: the INS and KF state are not changed, so aiding resumes from the INS.
+    """
+
+    knn: KnnConfig = field(default_factory=KnnConfig)
+    imu_index: int = 0
+    gnss_instance: int = 0  # GPS1 only (a second receiver may be a different, unrelated source)
+    output_rate_hz: float = 10.0
+    min_imu_rate_hz: float = 20.0
+    rate_window_s: float = 2.0
+    imu_timeout_s: float = 3.0  # no IMU for this long in INS mode -> kinematic fallback
+    max_imu_step_s: float = 0.1  # longer IMU gaps are not integrated through (covariance inflated)
+    reorder_window_s: float = 0.25
+    fuse_predictor: bool = True
+    predictor_min_age_s: float = 0.0
+    predictor_sigma_scale: float = 2.0
+    predictor_decorrelate: bool = True
+    fuse_attitude: bool = True
+    fuse_attitude_yaw: bool = False
+    fuse_gnss_velocity: bool = True
+    gnss_delay_s: float = 0.0
+    gate_chi2: float = CHI2_3DOF_999
+    gate_reset_s: float = 5.0
+    gnss_sigma_model: str = "short_term"  # "short_term" | "accuracy"
+    position_fix_gate_chi2: float = CHI2_2DOF_999  # own gate for PositionFix (horizontal, 2 dof); no reset
+    short_term_sigma_h_m: float = 0.3
+    short_term_sigma_v_m: float = 0.5
+    uere_h_m: float = 1.5
+    uere_v_m: float = 2.5
+    default_sigma_h_m: float = 2.5
+    default_sigma_v_m: float = 4.0
+    min_sigma_h_m: float = 0.3
+    gnss_vel_sigma_mps: float = 0.3
+    att_sigma_tilt_rad: float = 0.03
+    att_sigma_yaw_rad: float = 0.1
+    accel_noise_mps2_rthz: float = 0.3
+    gyro_noise_radps_rthz: float = 0.01
+    accel_bias_sigma_mps2: float = 0.3
+    gyro_bias_sigma_radps: float = 0.02
+    bias_tau_s: float = 300.0
+    init_sigma_att_rad: float = 0.05
+    init_sigma_yaw_rad: float = 0.2
+    kinematic_accel_sigma_mps2: float = 2.0
+    ahrs_check: bool = True
+    ahrs_check_interval_s: float = 0.9
+    ahrs_check_tau_s: float = 20.0
+    ahrs_check_min_dv_mps: float = 2.0
+    ahrs_check_min_coherence: float = 0.5
+    ahrs_max_offset_deg: float = 30.0
+    ahrs_ok_offset_deg: float = 15.0
+    yaw_align_min_deg: float = 15.0
+    yaw_align_sigma_rad: float = 0.1
+    att_fuse_interval_s: float = 0.0
+    # vertical aid from the autopilot's altitude (AutopilotAltitude, GLOBAL_POSITION_INT; barometric on ArduPilot):
+    # while GNSS positions arrive, only the offset between that altitude and ours is learnt (datum, baro bias; time
+    # constant alt_offset_tau_s); once none has been fused for alt_gnss_gap_s, the offset-corrected altitude is fused
+    # with alt_sigma_m. Off by default (a short blockage does not need it); gravity_nav_config turns it on.
+    fuse_autopilot_alt: bool = False
+    alt_sigma_m: float = 3.0
+    alt_gnss_gap_s: float = 2.0
+    alt_offset_tau_s: float = 60.0
+    hold_prior: bool = False
+    hold_prior_min_age_s: float = 1.5
+    hold_prior_max_lag_s: int = 60
+    hold_prior_tau_s: float = 120.0
+
+    def __post_init__(self) -> None:
+        if self.output_rate_hz <= 0 or self.min_imu_rate_hz <= 0:
+            raise ValueError("rates must be positive")
+        if self.reorder_window_s < 0:
+            raise ValueError("reorder_window_s must be >= 0")
+        if self.gnss_sigma_model not in ("short_term", "accuracy"):
+            raise ValueError("gnss_sigma_model must be 'short_term' or 'accuracy'")

@@ -1,0 +1,173 @@
+"""The navigator's INS error-state Kalman filter: covariance propagation (eq. 9), gated updates (eqs. 7, 8, 10)
+with feedback of the error estimate into the strapdown INS, and the position, velocity and attitude measurements.
+A mixin of companion.nav.navigator.Navigator (its state lives on the navigator); the 15 states are listed in
+companion.nav.outputs.INS_STATE_NAMES."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from companion.events import Attitude
+from companion.nav.ins import dcm_from_quat, quat_from_euler
+from companion.nav.outputs import MeasurementUpdate
+
+
+def _skew(v) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+class InsFilter:
+    """Mixin: the 15-state error-state KF around the Navigator's StrapdownIns (``ins``, ``_kf``, ``_kf_t``)."""
+
+    def _ins_predict(self, t: float) -> None:
+        """Propagate the error covariance to ``t`` (eq. 9) with the interval's mean specific force."""
+        c = self.config
+        dt = t - self._kf_t
+        if dt <= 0:
+            return
+        ins = self.ins
+        if self._f_n:
+            f = np.array(self._f_sum) / self._f_n
+        else:
+            f = np.array(ins.f_ned)
+        self._f_sum = [0.0, 0.0, 0.0]
+        self._f_n = 0
+        C = ins.dcm()
+        F = np.zeros((15, 15))
+        F[0:3, 3:6] = np.eye(3)
+        F[3:6, 6:9] = -_skew(f)
+        F[3:6, 9:12] = -C
+        F[6:9, 12:15] = -C
+        F[9:15, 9:15] = -np.eye(6) / c.bias_tau_s
+        Fd = F * dt
+        phi = np.eye(15) + Fd + 0.5 * Fd @ Fd
+        q = np.empty(15)
+        q[0:3] = 1e-6 * dt
+        q[3:6] = c.accel_noise_mps2_rthz**2 * dt
+        q[6:9] = c.gyro_noise_radps_rthz**2 * dt
+        q[9:12] = 2 * c.accel_bias_sigma_mps2**2 / c.bias_tau_s * dt
+        q[12:15] = 2 * c.gyro_bias_sigma_radps**2 / c.bias_tau_s * dt
+        self._kf.predict(F=phi, Q=np.diag(q))
+        self._kf_t = t
+
+    def _ins_apply(self, H: np.ndarray, z: np.ndarray, R: np.ndarray, kind: str, t: float,
+                   R_gate: np.ndarray | None = None, gate_chi2: float | None = None) -> bool:
+        kf = self._kf
+        S = H @ kf.P @ H.T + (R if R_gate is None else np.maximum(R, R_gate))
+        nis = float(z @ np.linalg.solve(S, z))
+        gate = self.config.gate_chi2 if gate_chi2 is None else gate_chi2
+        ok = nis <= gate
+        self._out.append(
+            MeasurementUpdate(t, kind, "ins", tuple(float(x) for x in z), tuple(float(x) for x in np.sqrt(np.diag(R))),
+                              nis, gate, ok)
+        )
+        if not ok:
+            return False
+        kf.update(z.reshape(-1, 1), R=R, H=H)
+        dx = kf.x.ravel()
+        self._correct_ins(dx[0:3], dx[3:6], dx[6:9], dx[9:12], dx[12:15])
+        kf.x = np.zeros((15, 1))
+        return True
+
+    def _correct_ins(self, dp, dv, psi, dba, dbg) -> None:
+        """Feed an error estimate back into the INS and shift the delay history with it."""
+        self.ins.correct(dp, dv, psi, dba, dbg)
+        for h in self._hist:
+            h[1] += dp[0]
+            h[2] += dp[1]
+            h[3] += dp[2]
+            h[4] += dv[0]
+            h[5] += dv[1]
+            h[6] += dv[2]
+
+    def _ins_state_at(self, t: float, delay_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """INS position (local NED) and velocity at the epoch ``t - gnss_delay_s`` a fix stamped t refers to.
+
+        From the per-IMU-step history when the epoch is in the past, else extrapolated from the current
+        state at constant velocity.
+        """
+        ins = self.ins
+        te = t - (self.config.gnss_delay_s if delay_s is None else delay_s)
+        hist = self._hist
+        if hist and te < hist[-1][0]:
+            if te <= hist[0][0]:
+                h = hist[0]
+                return np.array(h[1:4]), np.array(h[4:7])
+            for i in range(len(hist) - 1, 0, -1):
+                a = hist[i - 1]
+                if a[0] <= te:
+                    b = hist[i]
+                    w = (te - a[0]) / (b[0] - a[0]) if b[0] > a[0] else 1.0
+                    pa, pb = np.array(a[1:]), np.array(b[1:])
+                    x = pa + w * (pb - pa)
+                    return x[0:3], x[3:6]
+        n, e, d = self.frame.ned_tuple(ins.lat_deg, ins.lon_deg, ins.h_m)
+        dt = te - ins.t_s
+        return np.array([n + ins.vn * dt, e + ins.ve * dt, d + ins.vd * dt]), np.array([ins.vn, ins.ve, ins.vd])
+
+    def _ins_position_update(self, t: float, z, sh: float, sv: float, kind: str, gate_sigma=None) -> bool:
+        self._ins_predict(max(t, self._kf_t))
+        H = np.zeros((3, 15))
+        H[:, 0:3] = np.eye(3)
+        y = np.asarray(z) - self._ins_state_at(t)[0]
+        R_gate = None if gate_sigma is None else np.diag([gate_sigma[0] ** 2, gate_sigma[0] ** 2, gate_sigma[1] ** 2])
+        ok = self._ins_apply(H, y, np.diag([sh**2, sh**2, sv**2]), kind, t, R_gate)
+        if kind == "gnss_pos":
+            ok = self._gate_bookkeeping(t, ok, y, sh, sv)
+        if ok:
+            self._last_innov = tuple(float(x) for x in y)
+        else:
+            self._n_rejected += 1
+        return ok
+
+    def _gate_bookkeeping(self, t: float, ok: bool, y, sh: float, sv: float) -> bool:
+        """Persisting rejection is a real position step, not a glitch: reset position to GNSS."""
+        if ok:
+            self._reject_since = None
+            return True
+        if self._reject_since is None:
+            self._reject_since = t
+            return False
+        if t - self._reject_since < self.config.gate_reset_s:
+            return False
+        self._reject_since = None
+        if self.mode == "ins":
+            kf = self._kf
+            kf.P[0:3, :] = 0.0
+            kf.P[:, 0:3] = 0.0
+            kf.P[0:3, 0:3] = np.diag([sh**2, sh**2, sv**2])
+            kf.P[3:6, 3:6] += np.eye(3)
+            self._correct_ins(y, (0, 0, 0), (0, 0, 0), (0, 0, 0), (0, 0, 0))
+        return True
+
+    def _ins_velocity_update(self, t: float, vel, sigma: float) -> None:
+        self._ins_predict(max(t, self._kf_t))
+        H = np.zeros((3, 15))
+        H[:, 3:6] = np.eye(3)
+        y = np.asarray(vel, dtype=float) - self._ins_state_at(t)[1]
+        self._ins_apply(H, y, np.eye(3) * sigma**2, "gnss_vel", t)
+
+    def _ins_attitude_update(self, ev: Attitude) -> None:
+        c = self.config
+        self._ins_predict(max(ev.t_s, self._kf_t))
+        fuse_yaw = c.fuse_attitude_yaw and self.ahrs_consistent
+        # Tilt-only measurement: the autopilot's roll/pitch fix the gravity direction in the body frame
+        # whatever its heading, so the measured attitude is built with the INS's own heading. (Built with
+        # the autopilot's heading, a heading disagreement of d rotates and mixes the roll/pitch innovations
+        # through the small-angle extraction below: at d ~ 90 deg, as in the Erle PXF log, a roll error was
+        # read as a pitch error.)
+        yaw_meas = ev.yaw_rad if fuse_yaw else self.ins.euler()[2]
+        c_meas = dcm_from_quat(quat_from_euler(ev.roll_rad, ev.pitch_rad, yaw_meas))
+        E = c_meas @ self.ins.dcm().T  # = I + [psi x] for small psi
+        y = 0.5 * np.array([E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]])
+        H = np.zeros((3, 15))
+        H[:, 6:9] = np.eye(3)
+        s_yaw = c.att_sigma_yaw_rad if fuse_yaw else 1e3  # 1e3 rad: no heading information
+        s_tilt2 = c.att_sigma_tilt_rad**2
+        if not self.ahrs_consistent:  # tilt error induced by the AHRS heading offset (see ahrs_check)
+            a_rms = math.sqrt(self._al_acc2 / self._al_w) if self._al_w > 0 else 0.0
+            s_tilt2 += (2.0 * math.sin(0.5 * abs(self.ahrs_heading_offset_rad)) * a_rms / 9.8) ** 2
+        R = np.diag([s_tilt2, s_tilt2, s_yaw**2])
+        self._ins_apply(H, y, R, "attitude", ev.t_s)

@@ -1,0 +1,51 @@
+"""One reorder buffer for every stream that must be handled in time order: releases events in time order once they
+are ``horizon_s`` older than the newest seen (file sources, the navigator's input)."""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Mapping
+
+from companion.events import Event
+
+
+class ReorderBuffer:
+    """Releases events in time order once they are older than ``horizon_s`` behind the newest.
+
+    Equal times go by ``priority`` (event type -> rank, lower first; others ``default_priority``), then arrival
+    order. ``horizon_s = 0`` passes events straight through. Events that arrive later than the horizon allows are
+    released at once, still in arrival order, and counted in ``late``.
+    """
+
+    def __init__(self, horizon_s: float, priority: Mapping[type, int] | None = None, default_priority: int = 0) -> None:
+        self.horizon_s = horizon_s
+        self._priority = dict(priority or {})
+        self._default = default_priority
+        self._heap: list[tuple[float, int, int, Event]] = []
+        self._seq = 0
+        self.newest_s = float("-inf")
+        self._released = float("-inf")
+        self.late = 0
+
+    def push(self, ev: Event) -> list[Event]:
+        if ev.t_s > self.newest_s:
+            self.newest_s = ev.t_s
+        if self.horizon_s <= 0:
+            return [ev]
+        if ev.t_s < self._released:
+            self.late += 1
+        self._seq += 1
+        heapq.heappush(self._heap, (ev.t_s, self._priority.get(type(ev), self._default), self._seq, ev))
+        out = []
+        limit = self.newest_s - self.horizon_s
+        while self._heap and self._heap[0][0] <= limit:
+            item = heapq.heappop(self._heap)
+            self._released = max(self._released, item[0])
+            out.append(item[3])
+        return out
+
+    def flush(self) -> list[Event]:
+        out = [heapq.heappop(self._heap)[3] for _ in range(len(self._heap))]
+        if out:
+            self._released = max(self._released, out[-1].t_s)
+        return out
