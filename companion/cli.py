@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import os
 import signal
 import sys
 from pathlib import Path
@@ -146,6 +147,16 @@ def _build_pipeline(recorder, args):
         raise UsageError(f"gravity map {args.gravity_map}: {err}") from None
 
 
+def _refuse_overwriting_inputs(out: Path, inputs: list[Path]) -> None:
+    """An input is never overwritten: checked before anything is opened (same path, or the same file by another name)."""
+    for src in inputs:
+        same = out.resolve() == src.resolve()
+        if not same and out.exists() and src.exists():
+            same = os.path.samefile(out, src)
+        if same:
+            raise UsageError(f"--out {out} is the input {src}: refusing to overwrite it")
+
+
 def cmd_replay(args) -> int:
     from companion.pipeline.core import wall_time_s
     from companion.record import Recorder
@@ -154,8 +165,9 @@ def cmd_replay(args) -> int:
     log = Path(args.log) if args.log else SAMPLE_LOG
     if args.log is None and not log.exists():
         raise UsageError(f"the bundled sample {log} is missing; regenerate it with: python -m companion.sim.make_sample")
-    source = FileSource(log)
     out = Path(args.out) if args.out else _default_out(log.stem)
+    _refuse_overwriting_inputs(out, [log] + ([Path(args.gravity_map)] if args.gravity_map else []))
+    source = FileSource(log)
     out.parent.mkdir(parents=True, exist_ok=True)
     recorder = Recorder(out)
     try:
@@ -396,7 +408,8 @@ def main(argv: list[str] | None = None) -> int:
         sys.stderr.close()
         return EXIT_OK
     except OSError as err:
-        print(f"companion: error: {err.filename or ''}: {err.strerror or err}", file=sys.stderr)
+        where = f"{err.filename}: " if err.filename else ""
+        print(f"companion: error: {where}{err.strerror or err}", file=sys.stderr)
         return EXIT_ERROR
 
 

@@ -128,9 +128,58 @@ class Config:
 
 _SECTIONS = {"link": LinkConfig, "inject": InjectConfig, "record": RecordConfig, "gravity": GravityConfig}
 
+#: The range every numeric setting must lie in, from the unit in its name (longest suffix first); a value outside
+#: its range is a start-up error, so no setting can make the process spin, fill the disk or claim nonsense.
+_UNIT_RANGES: tuple[tuple[str, tuple[float, float]], ...] = (
+    ("_mps2_rthz", (0.0, 100.0)), ("_radps_rthz", (0.0, 10.0)), ("_mps2", (0.0, 1000.0)), ("_radps", (0.0, 10.0)),
+    ("_mps", (0.0, 1000.0)), ("_hz", (1e-3, 1000.0)), ("_rad", (0.0, 2.0 * math.pi)), ("_deg", (0.0, 360.0)),
+    ("_mgal", (0.0, 1e4)), ("_chi2", (0.1, 1e4)), ("_s", (0.0, 86400.0)), ("_m", (0.0, 1e6)),
+)
+#: Settings whose sane range is narrower than their unit's, or that have no unit (counts, ratios, indices).
+_RANGES: dict[str, tuple[float, float]] = {
+    "duration_s": (0.0, 1e8),
+    "link.baud": (1200, 20_000_000), "link.system_id": (1, 255), "link.component_id": (1, 255),
+    "link.target_system": (0, 255), "link.target_component": (0, 255),
+    "streams.check_period_s": (0.5, 600.0), "streams.min_fraction": (1e-3, 1.0),
+    "inject.gps_id": (0, 1), "inject.receiver_instance": (0, 1), "inject.satellites": (6, 254),
+    "inject.max_lag_s": (0.01, 5.0), "inject.autopilot_lag_s": (0.0, 0.25), "inject.receiver_lag_s": (0.0, 2.0),
+    "inject.consistency_window_s": (0.05, 10.0), "inject.gnss_timeout_s": (0.05, 60.0),
+    "record.flush_interval_s": (0.05, 3600.0), "record.segment_s": (0.0, 86400.0),
+    "gravity.accept_min_track_cells": (0.0, 1e4), "gravity.accept_min_signal_ratio": (0.0, 1e9),
+    "gravity.sigma_mgal": (1e-3, 1e4),
+    "navigator.imu_index": (0, 3), "navigator.gnss_instance": (0, 1), "navigator.gnss_delay_s": (0.0, 1.0),
+    "navigator.reorder_window_s": (0.0, 2.0), "navigator.max_imu_step_s": (1e-3, 1.0),
+    "navigator.rate_window_s": (0.1, 60.0), "navigator.imu_timeout_s": (0.1, 60.0),
+    "navigator.hold_prior_max_lag_s": (1, 600), "navigator.predictor_sigma_scale": (0.1, 100.0),
+    "navigator.ahrs_check_min_coherence": (0.0, 1.0), "navigator.output_rate_hz": (0.1, 50.0),
+}
+#: record.segment_s between 0 (one file) and this is refused: a new file every few seconds is a runaway
+MIN_SEGMENT_S = 10.0
 
-def _coerce(where: str, value: Any, default: Any) -> Any:
-    """Check ``value`` against the type of the default; ints are accepted for floats."""
+
+def setting_range(where: str) -> tuple[float, float] | None:
+    """The (min, max) a numeric setting ``section.key`` must lie in, or None when nothing bounds it."""
+    if where in _RANGES:
+        return _RANGES[where]
+    key = where.rpartition(".")[2]
+    for suffix, rng in _UNIT_RANGES:
+        if key.endswith(suffix):
+            return rng
+    return None
+
+
+def _in_range(where: str, value: float) -> float:
+    rng = setting_range(where)
+    if rng is None:
+        raise ConfigError(f"{where}: no range is known for this setting")  # every numeric setting has one (tested)
+    lo, hi = rng
+    if not lo <= value <= hi:
+        raise ConfigError(f"{where}: {value!r} is out of range {lo:g}..{hi:g}")
+    return value
+
+
+def _coerce(where: str, value: Any, default: Any, check_range: bool = True) -> Any:
+    """Check ``value`` against the type of the default (ints are accepted for floats) and numbers against their range."""
     if isinstance(default, bool):
         if not isinstance(value, bool):
             raise ConfigError(f"{where}: expected true or false, got {value!r}")
@@ -138,13 +187,13 @@ def _coerce(where: str, value: Any, default: Any) -> Any:
     if isinstance(default, int):
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(f"{where}: expected an integer, got {value!r}")
-        return value
+        return _in_range(where, value) if check_range else value
     if isinstance(default, float):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}: expected a number, got {value!r}")
         if not math.isfinite(value):
             raise ConfigError(f"{where}: must be finite, got {value!r}")
-        return float(value)
+        return _in_range(where, float(value)) if check_range else float(value)
     if isinstance(default, str):
         if not isinstance(value, str):
             raise ConfigError(f"{where}: expected a string, got {value!r}")
@@ -178,9 +227,9 @@ def _streams(table: Any) -> StreamConfig:
         if k in ("check_period_s", "min_fraction"):
             kw[k] = _coerce(f"streams.{k}", v, getattr(d, k))
         elif k in STREAMABLE:
-            r = _coerce(f"streams.{k}", v, 1.0)
-            if r < 0 or r > 400:
-                raise ConfigError(f"streams.{k}: rate {r:g} Hz out of range 0..400 (0 = do not request)")
+            r = _coerce(f"streams.{k}", v, 1.0, check_range=False)
+            if not (r == 0 or 0.01 <= r <= 400):
+                raise ConfigError(f"streams.{k}: rate {r:g} Hz out of range 0.01..400 (0 = do not request)")
             if r == 0:
                 rates.pop(k, None)
             else:
@@ -235,8 +284,8 @@ def _validate(cfg: Config) -> Config:
         raise ConfigError("record.out must name a file or directory")
     if not cfg.record.flush_interval_s > 0:
         raise ConfigError("record.flush_interval_s must be > 0")
-    if not cfg.record.segment_s >= 0:
-        raise ConfigError("record.segment_s must be >= 0 (0: one file)")
+    if 0 < cfg.record.segment_s < MIN_SEGMENT_S:
+        raise ConfigError(f"record.segment_s must be 0 (one file) or >= {MIN_SEGMENT_S:g} s, got {cfg.record.segment_s:g}")
     _validate_gravity(cfg.gravity)
     if cfg.gravity.map and any(n not in cfg.streams.rates_hz for n in GRAVITY_STREAMS_HZ):
         cfg = dataclasses.replace(cfg, streams=dataclasses.replace(
@@ -298,6 +347,8 @@ def load_config(path: str | os.PathLike | None = None, overrides: dict[str, Any]
             raise ConfigError(f"config file {p}: {err.strerror or err}") from None
         except tomllib.TOMLDecodeError as err:
             raise ConfigError(f"config file {p}: not valid TOML ({err})") from None
+        except UnicodeDecodeError as err:
+            raise ConfigError(f"config file {p}: not UTF-8 text (byte {err.start})") from None
     for key, value in (overrides or {}).items():
         if value is None:
             continue

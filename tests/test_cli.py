@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import socket
 import subprocess
@@ -98,6 +99,21 @@ def test_truncated_bin_replays_what_is_there_and_says_so(tmp_path):
     s = summarize(tmp_path / "cut.mcap")
     imu = sum(t.count for t in s.topics if t.topic.startswith("/input/imu"))
     assert s.finalised and imu > 10_000  # ~1/3 of the file: three IMUs at 50 Hz
+
+
+@pytest.mark.parametrize("name", ["log.bin", "log.tlog"])
+def test_out_that_is_the_input_is_refused_before_anything_is_opened(name, tmp_path):
+    src = require(LOG_ERLE if name.endswith(".bin") else LOG_TLOG)
+    log = tmp_path / name
+    log.write_bytes(src.read_bytes()[:200_000])
+    before = log.read_bytes()
+    alias = tmp_path / "alias.mcap"
+    os.link(log, alias)  # the same file under another name
+    for out in (log, tmp_path / "." / name, alias):
+        res = run_cli("replay", log, "--out", out)
+        assert res.returncode == 2 and "refusing to overwrite" in res.stderr, res.stderr
+        assert len(res.stderr.strip().splitlines()) == 1
+        assert log.read_bytes() == before
 
 
 def test_missing_file_and_bad_url():

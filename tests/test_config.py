@@ -51,21 +51,27 @@ def test_parse_override_reads_toml_values():
         parse_override("nonsense")
 
 
+C = '[link]\nconnect = "tcp:1.2.3.4:5"\n'
 BAD = {
     "missing connect": ("", {}, "link.connect is not set"),
     "bad url": ('[link]\nconnect = "udpin:localhost"\n', {}, "SCHEME:HOST:PORT"),
     "unknown key": ('[link]\nconnect = "tcp:1.2.3.4:5"\nspeed = 3\n', {}, "unknown setting 'speed'"),
     "unknown section": ('[lnk]\nconnect = "x"\n', {}, "unknown setting"),
     "wrong type": ('[link]\nconnect = "tcp:1.2.3.4:5"\nsystem_id = "one"\n', {}, "link.system_id: expected an integer"),
-    "range": ('[link]\nconnect = "tcp:1.2.3.4:5"\nsystem_id = 300\n', {}, "link.system_id must be in 1..255"),
+    "range": ('[link]\nconnect = "tcp:1.2.3.4:5"\nsystem_id = 300\n', {}, "link.system_id: 300 is out of range 1..255"),
     "inject mode": ('[link]\nconnect = "tcp:1.2.3.4:5"\n[inject]\nmode = "on"\n', {}, "mode must be one of"),
     "slow inject": ('[link]\nconnect = "tcp:1.2.3.4:5"\n[inject]\nmode = "inject"\nrate_hz = 2\n', {}, ">= 5"),
-    "gps id": ('[link]\nconnect = "tcp:1.2.3.4:5"\n', {"inject.gps_id": 3}, "gps_id must be 0"),
+    "gps id": ('[link]\nconnect = "tcp:1.2.3.4:5"\n', {"inject.gps_id": 3}, "inject.gps_id: 3 is out of range"),
     "stream": ('[link]\nconnect = "tcp:1.2.3.4:5"\n[streams]\nVFR_HUD = 4\n', {}, "unknown setting 'VFR_HUD'"),
     "no gps stream": ('[link]\nconnect = "tcp:1.2.3.4:5"\n[streams]\nGPS_RAW_INT = 0\n', {}, "GPS_RAW_INT must be"),
     "backoff": ('[link]\nconnect = "tcp:1.2.3.4:5"\nreconnect_min_s = 5.0\nreconnect_max_s = 1.0\n', {}, "reconnect_max_s"),
     "not toml": ("[link\nconnect=", {}, "not valid TOML"),
     "key file": ('[link]\nconnect = "tcp:1.2.3.4:5"\nsigning_key_file = "/nonexistent/key"\n', {}, "cannot read"),
+    "flush forever": (C, {"record.flush_interval_s": 1e300}, "record.flush_interval_s: .* out of range"),
+    "tiny stream rate": (C, {"streams.GPS_RAW_INT": 1e-40}, "streams.GPS_RAW_INT: rate .* out of range"),
+    "runaway segments": (C, {"record.segment_s": 1e-9}, "record.segment_s must be 0"),
+    "absurd gnss delay": (C, {"navigator.gnss_delay_s": 1e300}, "navigator.gnss_delay_s: .* out of range"),
+    "huge timeout": (C, {"link.link_timeout_s": 1e9}, "link.link_timeout_s: .* out of range"),
     "nan": ('[link]\nconnect = "tcp:1.2.3.4:5"\nheartbeat_hz = nan\n', {}, "must be finite"),
 }
 
@@ -101,3 +107,32 @@ def test_cli_reports_config_errors_in_one_line(tmp_path):
     res = subprocess.run([sys.executable, "-m", "companion.cli", "run", "--config", str(p)], capture_output=True, text=True, timeout=60)
     assert res.returncode == 2 and res.stderr.startswith("companion: error:") and "mode must be one of" in res.stderr
     assert len(res.stderr.strip().splitlines()) == 1
+
+
+def test_non_utf8_file_is_a_clear_error(tmp_path):
+    p = tmp_path / "bad.toml"
+    p.write_bytes(b'[link]\nconnect = "tcp:1.2.3.4:5"\n# \xff\xfe\n')
+    with pytest.raises(ConfigError, match="not UTF-8"):
+        load_config(p)
+
+
+def test_every_numeric_setting_has_a_range_holding_its_default():
+    """No hole: every number of every section (and every scalar navigator setting) is range-checked at start."""
+    import dataclasses
+
+    from companion.config import _SECTIONS, StreamConfig, setting_range
+    from companion.nav.config import NavigatorConfig
+
+    tables = {**_SECTIONS, "streams": StreamConfig, "navigator": NavigatorConfig}
+    checked = 0
+    for name, cls in tables.items():
+        d = cls()
+        for f in dataclasses.fields(cls):
+            v = getattr(d, f.name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                continue
+            rng = setting_range(f"{name}.{f.name}")
+            assert rng is not None, f"{name}.{f.name} has no range"
+            assert rng[0] <= v <= rng[1], f"{name}.{f.name} default {v} outside {rng}"
+            checked += 1
+    assert checked > 80

@@ -39,9 +39,10 @@ has no 3D fix or has been silent for ``gnss_timeout_s``, and stops ``recover_s``
 from __future__ import annotations
 
 import math
+import struct
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, ClassVar
 
 from companion import units
@@ -64,6 +65,7 @@ from companion.mavlink.gps_input import (  # noqa: F401 - the wire encoding, re-
 from companion.nav.frame import LocalFrame
 from companion.pipeline.stage import Stage
 
+MAX_UNIX_S = 4102444800  # 2100-01-01: a later "UTC" is a corrupt clock (and its GPS week overflows uint16)
 
 MODES = ("off", "shadow", "inject")
 ACTIVATIONS = ("always", "gnss_loss")
@@ -91,6 +93,11 @@ class InjectConfig:
     send_yaw: bool = False  # send the state's heading in ``yaw`` (only with a real heading source)
     floor_to_receiver: bool = True  # accuracies >= the receiver's last reported h_acc/v_acc (or DOP x uere_m)
     max_lag_s: float = 0.5  # a state this far behind the newest sensor event is stale: not sent
+    # the measurement lag the autopilot assumes for this GPS instance: ArduPilot's EKF fuses a GPS message as the
+    # vehicle ``GPSn_DELAY_MS`` before its arrival (0 there: the driver's default, 0.2 s for a MAVLink GPS). Each
+    # GPS_INPUT therefore describes the vehicle at (newest sensor time - autopilot_lag_s): the navigator's state,
+    # final only once the reorder window has passed, is carried forward to that epoch at its own velocity
+    autopilot_lag_s: float = 0.2
     consistency_chi2: float = CHI2_2DOF_999  # gate of the receiver cross-check (chi-square, 2 dof, 99.9 %)
     consistency_window_s: float = 0.5  # cross-check against receiver fixes at most this old
     receiver_lag_s: float = 0.2  # receiver fixes may lag the state by this much (allowance |v| x lag)
@@ -117,6 +124,8 @@ class InjectConfig:
         for k in ("uere_m", "max_speed_mps", "gnss_timeout_s", "recover_s", "max_lag_s", "consistency_chi2", "consistency_window_s"):
             if not getattr(self, k) > 0:
                 raise ValueError(f"{k} must be > 0")
+        if not 0.0 <= self.autopilot_lag_s < self.max_lag_s:
+            raise ValueError(f"autopilot_lag_s must be in [0, max_lag_s = {self.max_lag_s:g}), not {self.autopilot_lag_s:g}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -146,6 +155,7 @@ class GpsInputRecord(Event):
     time_week: int
     time_week_ms: int
     yaw_cdeg: int
+    extrapolated_s: float = 0.0  # how far the navigator's state was carried (at its velocity) to the epoch t_s
     topic: ClassVar[str] = "/inject/gps_input"
 
 
@@ -214,7 +224,7 @@ class Injector(Stage):
         if isinstance(item, GnssFix):
             return self._on_gnss(item)
         if isinstance(item, SystemTime):
-            if _finite(item.unix_time_s) and item.unix_time_s > GPS_EPOCH_UNIX_S:
+            if _finite(item.unix_time_s) and GPS_EPOCH_UNIX_S < item.unix_time_s < MAX_UNIX_S:
                 self._utc = item
             else:
                 self.dropped["SYSTEM_TIME without a valid UTC"] += 1
@@ -301,23 +311,31 @@ class Injector(Stage):
         if self._last_state_t is not None and s.t_s <= self._last_state_t:
             return out + self._drop(s.t_s, "time not after the previous state")
         self._last_state_t = s.t_s
-        if self._last_out_t is not None and s.t_s - self._last_out_t < 1.0 / c.rate_hz - 1e-6:
-            return out  # rate limit: not a fault, not recorded
+        if s.t_s < self._newest_input_t - c.max_lag_s:
+            return out + self._drop(s.t_s, f"stale: more than {c.max_lag_s:g} s behind the sensors")
+        tgt = s.t_s if self._newest_input_t == -math.inf else self._newest_input_t - c.autopilot_lag_s
+        if self._last_out_t is not None and tgt - self._last_out_t < 1.0 / c.rate_hz - 1e-6:
+            return out  # rate limit (or an older state finalised beside a newer one): not a fault, not recorded
         alt_ignored = self._alt_ignored(s)
         why = _invalid(s, c, check_alt=not alt_ignored)
         if why:
             return out + self._drop(s.t_s, why)
-        if s.t_s < self._newest_input_t - c.max_lag_s:
-            return out + self._drop(s.t_s, f"stale: more than {c.max_lag_s:g} s behind the sensors")
+        carried_s = tgt - s.t_s
+        s = _carry(s, tgt)
         why = self._cross_check(s)
         if why:
             return out + self._drop(s.t_s, why)
-        rec = self._record(s, alt_ignored)
+        rec = self._record(s, alt_ignored, carried_s)
         self._last_out_t = s.t_s
         self.built += 1
         self.fix_types[rec.fix_type] += 1
         if c.mode == "inject" and self.sender is not None:
-            sent = bool(self.sender(encode_gps_input(rec)))
+            try:  # packing checks every field against its wire type: a value out of it must not stop the stage
+                sent = bool(self.sender(encode_gps_input(rec)))
+            except (struct.error, ValueError, OverflowError) as err:
+                self.built -= 1
+                self.fix_types[rec.fix_type] -= 1
+                return out + self._drop(s.t_s, f"not encodable ({err.__class__.__name__})")
             if sent:
                 self.sent += 1
                 rec = _replace_sent(rec)
@@ -348,7 +366,7 @@ class Injector(Stage):
     def _alt_ignored(self, s: FusedState) -> bool:
         return not (_finite(s.sigma_v_m) and max(s.sigma_v_m, self._floor_v_m) <= self.config.max_v_acc_alt_m)
 
-    def _record(self, s: FusedState, alt_ignored: bool) -> GpsInputRecord:
+    def _record(self, s: FusedState, alt_ignored: bool, carried_s: float = 0.0) -> GpsInputRecord:
         c = self.config
         sh, sv = max(s.sigma_h_m, self._floor_h_m), max(s.sigma_v_m, self._floor_v_m)
         alt, vd = s.alt_msl_m, s.vel_d_mps
@@ -387,12 +405,24 @@ class Injector(Stage):
             h_acc_m=sh, v_acc_m=sv, speed_acc_mps=speed_acc, h_floor_m=self._floor_h_m, hdop=sh / c.uere_m, vdop=sv / c.uere_m,
             satellites=c.satellites if fix >= FixType.FIX_2D else 0, ignore_flags=flags,
             time_boot_us=units.us_from_s(boot_s), time_week=week, time_week_ms=week_ms, yaw_cdeg=yaw,
+            extrapolated_s=carried_s,
         )
 
 
-def _replace_sent(rec: GpsInputRecord) -> GpsInputRecord:
-    from dataclasses import replace
+def _carry(s: FusedState, t_s: float) -> FusedState:
+    """The state carried to epoch ``t_s`` at its own velocity: over the ~0.1 s between a final navigator state and the
+    epoch ArduPilot assumes, a 2 m/s^2 acceleration leaves 1 cm (0.25 m at the max_lag_s bound of 0.5 s)."""
+    dt = t_s - s.t_s
+    if dt == 0.0:
+        return s
+    lat, lon, alt = LocalFrame(s.lat_deg, s.lon_deg, s.alt_msl_m).to_geodetic(
+        (s.vel_n_mps * dt, s.vel_e_mps * dt, s.vel_d_mps * dt))
+    return replace(s, t_s=t_s, lat_deg=float(lat), lon_deg=float(lon), alt_msl_m=float(alt),
+                   north_m=s.north_m + s.vel_n_mps * dt, east_m=s.east_m + s.vel_e_mps * dt,
+                   down_m=s.down_m + s.vel_d_mps * dt, age_since_fix_s=s.age_since_fix_s + dt)
 
+
+def _replace_sent(rec: GpsInputRecord) -> GpsInputRecord:
     return replace(rec, sent=True)
 
 

@@ -55,6 +55,10 @@ _IMU_INDEX = {"RAW_IMU": 0, "SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
 _EPOCH_US = 1e15
 
 
+#: the altitudes (m above mean sea level) a GNSS fix of a vehicle can have; beyond them the message is corrupt
+MIN_ALT_M, MAX_ALT_M = -1000.0, 100_000.0
+
+
 def _finite(*vals: float) -> bool:
     return all(isinstance(v, (int, float)) and math.isfinite(v) for v in vals)
 
@@ -145,7 +149,10 @@ class MavlinkDecoder:
     def _gps(self, msg, recv_s: float, out: list[Event]) -> None:
         instance = 1 if msg.get_type() == "GPS2_RAW" else 0
         boot_s = None
-        if 0 < msg.time_usec < _EPOCH_US:
+        # ArduPilot stamps GPS_RAW_INT with the time of the last fix: during an outage a no-fix message keeps the
+        # time the fix was lost. Such a message is news of the outage now, not a late sample: it takes the stream's
+        # time (the newest boot time plus the receive delta), like a message without a time stamp
+        if 0 < msg.time_usec < _EPOCH_US and (int(msg.fix_type) >= FixType.FIX_2D or self._last_boot_s is None):
             boot_s = units.s_from_us(msg.time_usec)
         t_s = self._stamp(boot_s, recv_s, out)
         if t_s is None:
@@ -156,8 +163,9 @@ class MavlinkDecoder:
         has_pos = fix >= FixType.FIX_2D and not (msg.lat == 0 and msg.lon == 0)
         lat = units.deg_from_degE7(msg.lat) if has_pos else None
         lon = units.deg_from_degE7(msg.lon) if has_pos else None
-        if has_pos and not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
-            self.dropped["GPS lat/lon out of range"] += 1
+        if has_pos and not (-90.0 < lat < 90.0 and -180.0 < lon < 180.0 and MIN_ALT_M <= units.m_from_mm(msg.alt) <= MAX_ALT_M):
+            # out of range, or saturated at the limits of its integer (a pole, the antimeridian, +-2147 km)
+            self.dropped["GPS position out of range"] += 1
             has_pos, lat, lon = False, None, None
         if fix >= FixType.FIX_2D and not has_pos:
             fix = int(FixType.NO_FIX)  # a "fix" at 0,0 is no fix

@@ -507,6 +507,7 @@ class VehicleSim:
             return self.start_s + (time.monotonic() - wall0) * self.speed
 
         next_noise = self.start_s + 1.0
+        last_fix_us: int | None = None  # time_usec of the last GPS_RAW_INT with a fix
         dropped = rebooting = gnss_logged = forgot = False
         k = 0
         try:
@@ -567,9 +568,16 @@ class VehicleSim:
                     if not self._wanted(mtype, t):
                         continue
                     msg = it.msg
-                    if mtype == "GPS_RAW_INT" and _in(f.gnss_off, t):
+                    outage = mtype == "GPS_RAW_INT" and _in(f.gnss_off, t)
+                    if outage:
                         msg = mavlink2.MAVLink_gps_raw_int_message(msg.time_usec, 1, 0, 0, 0, 65535, 65535, 0, 65535, 0)
                     boot = self._retime(it, msg, loop_offset)
+                    if mtype == "GPS_RAW_INT":
+                        # as ArduPilot reports an outage: no fix, 0,0, stamped with the time of the last fix (frozen)
+                        if outage and last_fix_us is not None:
+                            msg.time_usec = last_fix_us
+                        elif not outage:
+                            last_fix_us = msg.time_usec
                     if boot is not None:
                         self.boot_play = (boot, t)
                     self._send(msg, it.src)

@@ -43,6 +43,15 @@ def fix(t_s, fix_type=3, instance=0) -> GnssFix:
     )
 
 
+def tick(inj, st, lag_s=0.2):
+    """A navigator state as the pipeline delivers it: once a sensor sample lag_s newer has arrived, so the message
+    describes the state's own epoch (no carrying)."""
+    from companion.events import ImuSample
+
+    inj.process(ImuSample(t_s=st.t_s + lag_s, accel_frd_mps2=(0.0, 0.0, -9.8), gyro_frd_radps=(0.0, 0.0, 0.0), imu_index=0))
+    return inj.process(st)
+
+
 class Wire:
     """Packs what the injector sends as MAVLink 2 bytes and parses them back, as the autopilot would."""
 
@@ -205,13 +214,13 @@ def test_config_validation(kw):
 def test_accuracy_never_better_than_the_receiver():
     inj = Injector(InjectConfig(mode="shadow"))
     inj.process(replace(fix(9.9), h_acc_m=0.9, v_acc_m=1.8))
-    rec = inj.process(state(sigma_h=0.2, sigma_v=0.3))[0]
+    rec = tick(inj, state(sigma_h=0.2, sigma_v=0.3))[0]
     assert rec.h_acc_m == 0.9 and rec.v_acc_m == 1.8 and rec.h_floor_m == 0.9
-    rec = inj.process(state(t_s=10.1, sigma_h=4.0, sigma_v=5.0))[0]  # coasting: the filter's growth shows
+    rec = tick(inj, state(t_s=10.1, sigma_h=4.0, sigma_v=5.0))[0]  # coasting: the filter's growth shows
     assert rec.h_acc_m == 4.0 and rec.v_acc_m == 5.0
     inj2 = Injector(InjectConfig(mode="shadow", floor_to_receiver=False))
     inj2.process(replace(fix(9.9), h_acc_m=0.9))
-    assert inj2.process(state(sigma_h=0.2))[0].h_acc_m == 0.2
+    assert tick(inj2, state(sigma_h=0.2))[0].h_acc_m == 0.2
 
 
 def test_stale_states_after_a_gap_are_not_sent():
@@ -229,22 +238,22 @@ def test_cross_check_against_the_receiver():
     rx = replace(fix(9.95), lat_deg=-35.3632, lon_deg=149.1652, h_acc_m=1.0)
     inj.process(rx)
     # 1 m away (within the gate: 13.8 x (1.5^2 + 1^2) + (5 m/s x 0.2 s)^2 -> 6.8 m)
-    ok = inj.process(state(t_s=10.0, lat=-35.3632 + 1.0 / 111_000))
+    ok = tick(inj, state(t_s=10.0, lat=-35.3632 + 1.0 / 111_000))
     assert isinstance(ok[0], GpsInputRecord)
-    bad = inj.process(state(t_s=10.1, lat=-35.3632 + 15.0 / 111_000))
+    bad = tick(inj, state(t_s=10.1, lat=-35.3632 + 15.0 / 111_000))
     assert isinstance(bad[0], InjectorDrop) and bad[0].reason == "inconsistent with the receiver"
     # no newer receiver fix to check against: stays refused until a check passes
-    held = inj.process(state(t_s=10.7, lat=-35.3632))
+    held = tick(inj, state(t_s=10.7, lat=-35.3632))
     assert isinstance(held[0], InjectorDrop) and "not yet re-checked" in held[0].reason
     inj.process(replace(rx, t_s=10.75))
-    assert isinstance(inj.process(state(t_s=10.8, lat=-35.3632))[0], GpsInputRecord)
+    assert isinstance(tick(inj, state(t_s=10.8, lat=-35.3632))[0], GpsInputRecord)
 
 
 def test_gnss_time_preferred_over_system_time():
     inj = Injector(InjectConfig(mode="shadow"))
     inj.process(SystemTime(t_s=9.0, unix_time_s=1.7e9))
     inj.process(replace(fix(9.9), gps_week=2357, gps_tow_s=518_423.0))
-    rec = inj.process(state(t_s=10.0))[0]
+    rec = tick(inj, state(t_s=10.0))[0]
     assert (rec.time_week, rec.time_week_ms) == (2357, 518_423_100)
 
 
@@ -268,3 +277,51 @@ def test_altitude_without_vertical_aid_is_flagged_ignored_not_sent():
     assert isinstance(bad, InjectorDrop) and bad.reason == "altitude out of range"
     with pytest.raises(ValueError):
         InjectConfig(max_v_acc_3d_m=20.0, max_v_acc_alt_m=10.0)
+
+
+def test_each_message_describes_the_epoch_it_claims_on_a_simulated_flight():
+    """The navigator's state is final only once its reorder window (0.25 s) has passed; ArduPilot fuses a GPS_INPUT as
+    the vehicle autopilot_lag_s (0.2 s) before it arrives. Each message must describe that epoch: its position matches
+    the truth at its own t_s within the INS's error, and is far closer to it than the uncarried state would be."""
+    import numpy as np
+
+    from companion.nav.navigator import Navigator
+    from companion.sim.circle import SimNoise, simulate_flight
+
+    sim = simulate_flight(40.0, np.random.default_rng(3), noise=SimNoise(gnss_std_h_m=0.3, gnss_std_v_m=0.5))
+    nav, inj = Navigator(), Injector(InjectConfig(mode="shadow"))
+    recs = []
+    for ev in sim.events:
+        out = nav.process(ev)
+        inj.process(ev)
+        for o in out:
+            recs += [r for r in inj.process(o) if isinstance(r, GpsInputRecord)]
+    recs = [r for r in recs if r.t_s > sim.truth_t_s[0] + 10.0]  # after the filter settled
+    assert len(recs) > 200
+    carried = np.array([r.extrapolated_s for r in recs])
+    assert np.all((carried > 0.0) & (carried < 0.2))  # states are 0.25-0.35 s old when final: carried 0.05-0.15 s
+    ned = sim.frame.to_ned_m([r.lat_deg for r in recs], [r.lon_deg for r in recs], [r.alt_msl_m for r in recs])
+    t = np.array([r.t_s for r in recs])
+    truth = np.stack([np.interp(t, sim.truth_t_s, sim.truth_pos_ned_m[:, i]) for i in range(3)], axis=1)
+    truth_then = np.stack([np.interp(t - carried, sim.truth_t_s, sim.truth_pos_ned_m[:, i]) for i in range(3)], axis=1)
+    err = np.hypot(*(ned - truth)[:, :2].T)
+    lag_err = np.hypot(*(truth_then - truth)[:, :2].T)  # what describing the uncarried epoch would cost
+    assert np.sqrt(np.mean(err**2)) < 0.5  # the navigator's own error on this flight (GNSS 0.3 m)
+    # closer to the truth of the epoch it claims than to the truth of the state's own (older) epoch
+    assert np.sqrt(np.mean(err**2)) < np.sqrt(np.mean(np.sum((ned - truth_then)[:, :2] ** 2, axis=1)))
+    assert np.mean(lag_err) > 0.2  # the flight moves enough for the epoch to matter
+
+
+def test_a_corrupt_clock_or_field_never_stops_the_injector():
+    """SYSTEM_TIME of year ~3000 (time_unix_usec 4e16) is refused as a clock; a field that does not fit its wire type
+    drops that one message with a reason."""
+    wire = Wire()
+    inj = Injector(InjectConfig(mode="inject"), sender=lambda m: wire(m))
+    inj.process(SystemTime(t_s=9.0, unix_time_s=4e10))
+    assert inj.dropped["SYSTEM_TIME without a valid UTC"] == 1
+    (rec,) = tick(inj, state(t_s=10.0))
+    assert rec.sent and rec.time_week == 0
+    (bad,) = tick(inj, state(t_s=10.2, sigma_h=1e39))  # finite, but beyond float32
+    assert isinstance(bad, InjectorDrop) and bad.reason.startswith("not encodable")
+    (rec,) = tick(inj, state(t_s=10.4))
+    assert rec.sent and len(wire.msgs) == 2

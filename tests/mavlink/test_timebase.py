@@ -78,6 +78,27 @@ def test_gps_time_usec_zero_uses_receive_time_since_last_boot_stamp():
     assert isinstance(fix, GnssFix) and fix.t_s == pytest.approx(50.25)
 
 
+def test_no_fix_with_the_time_of_the_last_fix_is_an_outage_now_not_a_late_sample():
+    """ArduPilot keeps GPS_RAW_INT.time_usec at the last fix during an outage: every no-fix message of a 30 s outage
+    is news of the outage at its arrival, none is dropped as late."""
+    dec = MavlinkDecoder()
+    dec.decode(_wire(mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 0, 3)), 0.0)
+    fixes = []
+    for k in range(400):  # 40 s at 10 Hz: fix until 10 s, then no fix, time frozen at the last fix
+        boot_ms = 100_000 + k * 100
+        recv = k * 0.1
+        dec.decode(_wire(mavlink.MAVLink_attitude_message(boot_ms, 0, 0, 0, 0, 0, 0)), recv)
+        lost = k >= 100
+        t_us = (100_000 + 99 * 100) * 1000 if lost else boot_ms * 1000
+        msg = mavlink.MAVLink_gps_raw_int_message(t_us, 1 if lost else 3, 0 if lost else -353632000,
+                                                  0 if lost else 1491652000, 0 if lost else 600_000, 90, 120, 0, 0, 10)
+        fixes += [e for e in dec.decode(_wire(msg), recv + 0.01) if isinstance(e, GnssFix)]
+    assert len(fixes) == 400 and not any(k.startswith("time jumped back") for k in dec.dropped)
+    lost = [f for f in fixes if f.fix_type < 2]
+    assert len(lost) == 300 and not any(f.has_position for f in lost)
+    assert lost[0].t_s == pytest.approx(110.01) and lost[-1].t_s == pytest.approx(139.91)  # stamped as they arrive
+
+
 def test_messages_from_other_systems_are_dropped():
     dec = MavlinkDecoder()
     gcs = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
@@ -114,3 +135,15 @@ def test_reboot_keeps_the_downtime_when_receive_times_are_known():
     assert isinstance(rb, Reboot)
     assert rb.t_s == pytest.approx(299.9 + 5.0)  # the 5 s the vehicle kept moving are not lost
     assert t == pytest.approx(299.9 + 5.04)
+
+
+@pytest.mark.parametrize("lat_e7, lon_e7, alt_mm", [(900_000_000, 1_491_652_000, 600_000), (-900_000_000, 0, 600_000),
+                                                     (-353_632_000, 1_800_000_000, 600_000),
+                                                     (-353_632_000, -1_800_000_000, 600_000),
+                                                     (-353_632_000, 1_491_652_000, 2_147_483_647),
+                                                     (-353_632_000, 1_491_652_000, -2_147_483_648)])
+def test_gps_at_the_limits_of_its_integers_is_no_fix(lat_e7, lon_e7, alt_mm):
+    dec = MavlinkDecoder()
+    dec.decode(_wire(mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 0, 3)), 0.0)
+    (fix,) = dec.decode(_wire(mavlink.MAVLink_gps_raw_int_message(5_000_000, 3, lat_e7, lon_e7, alt_mm, 90, 120, 0, 0, 10)), 5.0)
+    assert not fix.has_position and fix.fix_type < 2 and dec.dropped["GPS position out of range"] == 1

@@ -133,7 +133,7 @@ def test_bad_input_imu_stop_never_an_unsupported_fix(tmp_path):
     out, err = comp.communicate(timeout=90)
     recs = sim.finish()
     assert comp.returncode == 0 and "Traceback" not in err, err
-    for why in ("bad frame", "other system 2/1", "ATTITUDE non-finite", "GPS lat/lon out of range"):
+    for why in ("bad frame", "other system 2/1", "ATTITUDE non-finite", "GPS position out of range"):
         assert why in out, out  # dropped and said why
     gi = gps_inputs(recs)
     assert len(gi) > 100
