@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 
 from companion.events import Attitude, Event, FixType, GnssFix, ImuSample, StatusText
-from companion.timebase import VehicleClock
+from companion.timebase import HOLD_REASONS, VehicleClock
 from companion.mavlink.dialect import mavlink
 
 WANTED = ["IMU", "IMU2", "IMU3", "GPS", "GPS2", "GPA", "GPA2", "ATT", "MSG"]
@@ -42,7 +42,7 @@ class DataflashDecoder:
         if reboot is not None:
             out.append(reboot)
         if t_s is None:
-            self._drop("time jumped back (late, or a reboot not yet confirmed)")
+            self._drop(HOLD_REASONS[self.clock.last_hold])
         return t_s
 
     def decode(self, msg) -> list[Event]:

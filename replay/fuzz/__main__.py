@@ -29,22 +29,22 @@ TITLE = "# Fault tolerance: mutated logs through `companion replay`, a hostile l
 
 
 def _results_file() -> Path:
-    from replay.gravity2.common import RESULTS_DIR
+    from replay.harness.results import results_file
 
-    return RESULTS_DIR / "fuzz.md"
+    return results_file("fuzz")
 
 
 def _write(key: str, text: str, path: Path) -> None:
-    from replay.gravity2.common import write_section
+    from replay.harness.results import write_section
 
     if not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(TITLE)
-    write_section(key, text, path)
+    write_section(path, key, text, TITLE.strip("# \n"))
 
 
 def _table(header, rows) -> str:
-    from replay.gravity2.common import md_table
+    from replay.harness.results import md_table
 
     return md_table(list(header), rows)
 

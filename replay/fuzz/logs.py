@@ -49,7 +49,7 @@ TLOG_TIME_FIELDS = {
 
 def shared_logs_dir() -> Path:
     """``<shared>/data/logs``: the project's shared-data location ($COMPANION_SHARED or ../shared)."""
-    from companion.matching.data import shared_dir
+    from companion.shared_data import shared_dir
 
     return shared_dir() / "data" / "logs"
 

@@ -263,7 +263,7 @@ def run(args: list[str], *, mode: str = "subprocess", **kw) -> RunResult:
 def preload() -> None:
     """Import what a replay imports, once, before forking children (their start-up is then nothing)."""
     import companion.cli  # noqa: F401
-    import companion.estimation  # noqa: F401
+    import companion.nav  # noqa: F401
     import companion.pipeline  # noqa: F401
     import companion.record  # noqa: F401
     import companion.sources  # noqa: F401
