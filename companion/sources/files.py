@@ -117,21 +117,24 @@ class DataflashReader(LogReader):
 
     def __init__(self, path: str | os.PathLike) -> None:
         super().__init__(path)
-        from pymavlink import DFReader
-
-        from companion.mavlink.dataflash import WANTED, DataflashDecoder
+        from companion.mavlink.dataflash import WANTED, DataflashDecoder, resync_reader
 
         self._wanted = WANTED
         noise = io.StringIO()  # DFReader prints "bad header" lines on stderr; count them instead
         try:
             with contextlib.redirect_stderr(noise), contextlib.redirect_stdout(noise):
-                self._log = DFReader.DFReader_binary(str(self.path), zero_time_base=False)
+                self._log = resync_reader(str(self.path))
         except Exception as err:  # pymavlink raises assorted errors on garbage
             raise SourceError(f"{self.path}: not a readable dataflash log ({err.__class__.__name__}: {err})") from None
         if not getattr(self._log, "formats", None) or len(self._log.formats) <= 1:
             raise SourceError(f"{self.path}: dataflash log without message formats (FMT); damaged or not a log")
         bad = noise.getvalue().count("bad header")
-        if bad:
+        skipped = getattr(self._log, "skipped_bytes", 0)
+        if skipped:
+            self.info.warnings.append(
+                f"skipped {skipped} bytes in {self._log.skipped_stretches} stretches that are no dataflash records "
+                f"(a bad record header or type); reading went on at the next record")
+        elif bad:
             self.info.warnings.append(f"skipped {bad} corrupt bytes between records")
         self._check_tail()
         self._decoder = DataflashDecoder()
@@ -214,6 +217,16 @@ class TlogReader(LogReader):
                 return self._decoder.decode(msg, msg._timestamp)
 
     def _final_events(self) -> list[Event]:
+        try:
+            pending = int(self._log.mav.buf_len())  # bytes of a frame the parser was still waiting for the rest of
+        except (AttributeError, TypeError, ValueError):
+            pending = 0
+        if pending:
+            self.info.warnings.append(
+                f"truncated: the file ends {pending} bytes into a MAVLink frame (at byte {self.size_bytes - pending})")
+        bad = self._decoder.dropped.get("bad frame", 0)
+        if bad:
+            self.info.warnings.append(f"skipped {bad} corrupt frames (bad CRC or garbage between frames)")
         for why, n in sorted(self._decoder.dropped.items()):
             self.info.warnings.append(f"dropped {n} messages: {why}")
         if self._decoder.target_system is not None:
