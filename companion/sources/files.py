@@ -147,6 +147,16 @@ class DataflashReader(LogReader):
         for mtype, offs in enumerate(getattr(log, "offsets", [])):
             if offs and mtype in formats and offs[-1] >= last_start:
                 last_start, last_end = offs[-1], offs[-1] + formats[mtype].len
+        tail = self.size_bytes - last_end
+        if 0 < tail <= 528 and last_end + 3 <= self.size_bytes:
+            with open(self.path, "rb") as f:
+                f.seek(last_end)
+                head = f.read(3)
+            fmt = formats.get(head[2]) if head[:2] == DATAFLASH_MAGIC else None
+            if fmt is not None and fmt.len > tail:
+                last_start, last_end = last_end, last_end + fmt.len
+        elif 0 < tail < 3:
+            last_start, last_end = last_end, last_end + 3
         if last_end > self.size_bytes:
             self.info.warnings.append(
                 f"truncated: the last record (at byte {last_start}) needs {last_end - last_start} bytes but the "

@@ -103,3 +103,10 @@ def test_tlog_cut_mid_frame_exits_3(tmp_path):
 def _write(path, data):
     path.write_bytes(bytes(data))
     return path
+
+
+def test_dataflash_cut_mid_record_is_truncated(tmp_path):
+    log, buf = _log(LOG_AC402, 100_000)
+    rec = log.records[-5]
+    _, warnings = _read(_write(tmp_path / "cut.bin", buf[: rec.offset + 5]))
+    assert any(w.startswith("truncated") for w in warnings)
