@@ -66,7 +66,7 @@ def udp_port_bound(port: int) -> bool:
 
 
 def _reorder_window_s() -> float:
-    from companion.estimation.integrator import NavigatorConfig
+    from companion.nav.config import NavigatorConfig
 
     return float(NavigatorConfig().reorder_window_s)
 
@@ -352,7 +352,7 @@ class Peer:
                 self._on_gps_input(m, now)
 
     def _on_gps_input(self, m, now: float) -> None:
-        from companion.geodesy import LocalFrame
+        from companion.nav.frame import LocalFrame
         from companion.inject.gps_input import decode_gps_input
 
         d = decode_gps_input(m)
@@ -590,7 +590,7 @@ def scenarios() -> dict[str, Callable[[], list[Fault]]]:
 
 def run_live_fuzz(*, load=None, workdir: Path, seed: int = 0, transports=("tcp", "udp"), names=None) -> str:
     """Every scenario over each transport; the results as a Markdown section."""
-    from replay.gravity2.common import md_table
+    from replay.harness.results import md_table
 
     rows = []
     results = []
