@@ -250,7 +250,23 @@ def _boot_s(d: dict, default: float | None = 0.0) -> float | None:
     return default
 
 
-def resync_reader(path: str):
+#: the FMT record that defines FMT itself: the first record of every dataflash log (a second one: logs one after another)
+FMT_OF_FMT = b"\xa3\x95\x80\x80\x59FMT\x00"
+
+
+def log_starts(path: str) -> list[int]:
+    """Byte offsets where a dataflash log starts in the file: [0] for one log, more for logs concatenated."""
+    with open(path, "rb") as f:
+        data = f.read()
+    starts, i = [0], data.find(FMT_OF_FMT, 1)
+    while i > 0:
+        if i - starts[-1] > 2048:  # (a log's own FMT block is contiguous: only a new block far on is a new log)
+            starts.append(i)
+        i = data.find(FMT_OF_FMT, i + 1)
+    return starts
+
+
+def resync_reader(path: str, window: tuple[int, int] | None = None):
     """pymavlink's DFReader_binary whose index resynchronises: a record of an unknown type (a bad type byte) or
     bytes that are no record are skipped up to the next record header, and the rest of the log is read, like
     pymavlink's own parser skips bad data between records (its indexer stops at the first unknown type and drops
@@ -261,6 +277,32 @@ def resync_reader(path: str):
     from pymavlink import DFReader
 
     class ResyncDFReader(DFReader.DFReader_binary):
+        def __init__(self, filename, window=None):
+            if window is None:
+                super().__init__(filename, zero_time_base=False)
+                return
+            # one log of several in the file: its bytes alone, so its own FMT records define its formats
+            DFReader.DFReader.__init__(self)
+            self.filehandle = open(filename, "rb")
+            self.filehandle.seek(window[0])
+            self.data_map = self.filehandle.read(window[1] - window[0])
+            self.data_len = len(self.data_map)
+            self.HEAD1, self.HEAD2 = 0xA3, 0x95
+            self.unpackers = {}
+            self.formats = {0x80: DFReader.DFFormat(0x80, "FMT", 89, "BBnNZ", "Type,Length,Name,Format,Columns")}
+            self._zero_time_base = False
+            self.prev_type = None
+            self.init_arrays_fast()
+            self.init_clock()
+            self.prev_type = None
+            self._rewind(keep_messages=True)
+
+        def close(self):
+            if isinstance(self.data_map, bytes):
+                self.filehandle.close()
+                return
+            super().close()
+
         def init_arrays_fast(self, progress_callback=None):
             """pymavlink's compiled indexer, and this one when that stopped before the end of the file."""
             initial = dict(self.formats)
@@ -353,7 +395,7 @@ def resync_reader(path: str):
             self.offset = 0
 
     DFReader.print = _pymavlink_said  # its own diagnostics would break the one-line error promise: counted instead
-    return ResyncDFReader(path, zero_time_base=False)
+    return ResyncDFReader(path, window)
 
 
 class _c_stdout_silenced:
@@ -393,5 +435,9 @@ PYMAVLINK_SAID: dict[str, int] = {}
 
 
 def _pymavlink_said(*args, **_kw) -> None:
-    first = str(args[0]).split(" ", 1)[0] if args else ""
+    text = str(args[0]) if args else ""
+    first = text.split(" ", 1)[0]
     PYMAVLINK_SAID[first] = PYMAVLINK_SAID.get(first, 0) + 1
+    if text.startswith("Failed to parse "):  # "Failed to parse IMU/<struct> with len ..."
+        key = "Failed " + text[len("Failed to parse "):].split("/", 1)[0]
+        PYMAVLINK_SAID[key] = PYMAVLINK_SAID.get(key, 0) + 1
