@@ -201,6 +201,10 @@ class Injector(Stage):
         self.config = config or InjectConfig()
         self.sender = sender
         self.on_sent: Callable[[GpsInputRecord], None] | None = None
+        #: live: the clock of the link's receive times, and the arrival time of the input being processed (the
+        #: runtime sets both); a state built from input that arrived more than max_lag_s ago is never sent
+        self.arrival_clock: Callable[[], float] | None = None
+        self.arrival_s: float | None = None
         self.dropped: Counter[str] = Counter()
         self.sent = 0
         self.built = 0
@@ -346,6 +350,10 @@ class Injector(Stage):
         why = self._cross_check(s)
         if why:
             return out + self._drop(s.t_s, why)
+        if self.arrival_clock is not None and self.arrival_s is not None:
+            waited = self.arrival_clock() - self.arrival_s
+            if waited > c.max_lag_s:
+                return out + self._drop(s.t_s, f"stale: its input arrived more than {c.max_lag_s:g} s ago")
         rec = self._record(s, alt_ignored, carried_s)
         self._last_out_t = s.t_s
         self.built += 1

@@ -28,7 +28,7 @@ from companion.events import (
     SystemTime,
 )
 from companion.mavlink.dialect import mavlink
-from companion.timebase import VehicleClock
+from companion.timebase import HOLD_REASONS, VehicleClock
 
 MAV_AUTOPILOT_INVALID = mavlink.MAV_AUTOPILOT_INVALID
 MAV_TYPE_GCS = mavlink.MAV_TYPE_GCS
@@ -96,7 +96,7 @@ class MavlinkDecoder:
         if reboot is not None:
             out.append(reboot)
         if t_s is None:
-            self.dropped["time jumped back (late, or a reboot not yet confirmed)"] += 1
+            self.dropped[HOLD_REASONS[self.clock.last_hold]] += 1
             return None
         if not derived:
             self._last_boot_s = boot_s

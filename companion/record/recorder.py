@@ -30,6 +30,7 @@ import json
 import math
 import operator
 import os
+import sys
 from collections.abc import Mapping, Sequence
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -156,6 +157,11 @@ class Recorder:
         self._chunk_t0: int | None = None  # log time of the open chunk's first message
         self._busy = False
         self._close_requested = False
+        #: the OS error that stopped recording (a full disk, a removed drive): the recorder then drops every
+        #: later message (counted in ``dropped_after_error``) and never raises again, so a write error does not stop
+        #: what it records (navigation, injection); it says so once, on stderr, naming the file
+        self.write_error: OSError | None = None
+        self.dropped_after_error = 0
         # (class, topic) -> (channel id, (field names, getter) or None, to_dict)
         self._dc_channels: dict[tuple[type, str | None], tuple[int, Any, Any]] = {}
         self._named_channels: dict[str, int] = {}
@@ -255,11 +261,16 @@ class Recorder:
 
     def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
         """Add a metadata record (source, configuration, ...). Keys and values must be str."""
+        if self.write_error is not None:
+            return
         self._check_open()
         bad = [(k, v) for k, v in data.items() if not isinstance(k, str) or not isinstance(v, str)]
         if bad:
             raise TypeError(f"metadata {name!r}: keys and values must be str, got {bad[:3]!r}")
-        self._writer.add_metadata(name, dict(data))
+        try:
+            self._writer.add_metadata(name, dict(data))
+        except OSError as err:
+            self._failed(err)
 
     def flush(self) -> None:
         """Close the chunk in progress now, so everything written so far is in the file.
@@ -268,9 +279,12 @@ class Recorder:
         last messages on disk; the timer only decides when to flush, no wall time enters the record.
         A no-op once the recorder is closed.
         """
-        if self._closed or self._busy:
+        if self._closed or self._busy or self.write_error is not None:
             return
-        self._close_chunk()
+        try:
+            self._close_chunk()
+        except OSError as err:
+            self._failed(err)
 
     @property
     def counts(self) -> dict[str, int]:
@@ -295,10 +309,15 @@ class Recorder:
             self._close_requested = True
             return
         self._closed = True
+        if self.write_error is not None:
+            self._file.close()
+            return
         try:
             self._writer.finish()
             if self._fsync:
                 self._file.fsync()
+        except OSError as err:
+            self._failed(err)
         finally:
             self._file.close()
 
@@ -314,7 +333,18 @@ class Recorder:
         if self._closed:
             raise RecordError(f"{self.path}: the recorder is closed")
 
+    def _failed(self, err: OSError) -> None:
+        """A write failed: recording stops here (one message naming the file); nothing else is affected."""
+        if self.write_error is None:
+            self.write_error = err
+            why = err.strerror or err.__class__.__name__
+            print(f"companion: error: recording stopped, cannot write {self.path}: {why} "
+                  f"(navigation and injection go on; {self.path} is not finalised)", file=sys.stderr, flush=True)
+
     def _add(self, channel_id: int, t_ns: int, data: bytes) -> None:
+        if self.write_error is not None:
+            self.dropped_after_error += 1
+            return
         if self._closed:
             raise RecordError(f"{self.path}: the recorder is closed")
         self._busy = True
@@ -328,6 +358,8 @@ class Recorder:
                 self._chunk_t0 = t0 = t_ns
             if self._chunk_bytes >= self._chunk_size or abs(t_ns - t0) >= self._interval_ns:
                 self._close_chunk()
+        except OSError as err:
+            self._failed(err)
         finally:
             self._busy = False
         if self._close_requested:

@@ -9,6 +9,14 @@ the pings and systemd restarts the service).
 
 Latency: for every GPS_INPUT that leaves, the time from the arrival of the bytes whose decoding caused
 it (``Batch.recv_perf_s``) to the return of the socket write is kept per triggering message type.
+
+Freshness under load: the injector is told when the input it is working on arrived and never sends a state
+whose input arrived more than ``inject.max_lag_s`` ago. When the loop is behind the link (a batch waited
+more than :data:`SHED_AFTER_S`), everything queued is taken at once and its IMU samples are coalesced (the
+mean of each run between other events, held over the run's interval like one sample) so the loop catches
+up instead of falling further behind; it says so once per episode and counts what it shed (metadata
+``shed.*``, the summary). SIGTERM/SIGINT end the loop within a batch, whatever is still queued: the loop
+yields to the event loop every :data:`YIELD_S` so the signal handler runs.
 """
 
 from __future__ import annotations
@@ -19,16 +27,24 @@ import sys
 import time
 from array import array
 from collections import defaultdict
+from dataclasses import replace
 from typing import Any
 
 from companion.config import Config
 from companion.inject.gps_input import GpsInputRecord, Injector
 from companion.notify import Notifier
 from companion.pipeline.core import Pipeline, build_pipeline
+from companion.events import Event, ImuSample
 from companion.mavlink.link import Batch, LinkStatus, MavlinkLink
 from companion.sources.base import SourceInfo
 
 _STOP = object()
+#: a batch that waited this long (perf_counter, since its bytes arrived) means the loop is behind: shed load
+SHED_AFTER_S = 0.1
+#: the loop hands control back to the event loop (signals, housekeeping) at least this often while busy
+YIELD_S = 0.02
+#: batches taken from the queue at once when behind
+MAX_DRAIN = 100_000
 LATENCY_KEEP = 1 << 20  # latency samples kept per trigger (8 MiB); beyond, thinned by half
 
 
@@ -56,6 +72,7 @@ class Runtime:
         sender = self.link.send if config.inject.mode == "inject" else None
         self.injector = Injector(config.inject, sender=sender)
         self.injector.on_sent = self._on_sent
+        self.injector.arrival_clock = time.perf_counter  # freshness judged by when the input's bytes arrived
         self.pipeline: Pipeline = build_pipeline(sink, nav_config=nav_config, extra_stages=[*stages, self.injector])
         self.notifier = notifier if notifier is not None else Notifier()
         self.info = SourceInfo(kind="live", location=self.link.spec.url)
@@ -63,6 +80,9 @@ class Runtime:
         self.link_log: list[LinkStatus] = []
         self.batches = 0
         self.stopped_by: str | None = None
+        self.shed: dict[str, int] = defaultdict(int)  # load shed when behind: imu_in, imu_out, batches, episodes
+        self._behind = False
+        self._stop_requested = False
         self._rx: tuple[float, str] | None = None
         self._last_batch_wall = time.monotonic()
         self._log = log if log is not None else (lambda text: print(text, file=sys.stderr, flush=True))
@@ -95,6 +115,7 @@ class Runtime:
 
         def stop(reason: str) -> None:
             reasons.append(reason)
+            self._stop_requested = True
             queue.put_nowait(_STOP)
 
         sigs = (signal.SIGINT, signal.SIGTERM)
@@ -105,34 +126,83 @@ class Runtime:
         self.link.start(loop, queue.put_nowait)
         self.notifier.ready(f"link {self.link.spec.url} open, injector {self.config.inject.mode}")
         housekeeping = asyncio.ensure_future(self._housekeeping())
+        last_yield = time.perf_counter()
         try:
-            while True:
+            while not self._stop_requested:
                 item = await queue.get()
                 if item is _STOP:
                     break
                 if isinstance(item, Batch):
+                    if time.perf_counter() - item.recv_perf_s > SHED_AFTER_S:
+                        item, later = self._catch_up(item, queue)
+                        for st in later:
+                            if st is _STOP:
+                                self._stop_requested = True
+                            else:
+                                self._on_status(st)
+                    elif self._behind:
+                        self._behind = False
+                        self._log(f"companion: caught up with the link; shed so far: {self._shed_text()}")
                     self._rx = (item.recv_perf_s, item.trigger)
+                    self.injector.arrival_s = item.recv_perf_s
                     for ev in item.events:
                         self.pipeline.process(ev)
-                    self._rx = None
+                        if time.perf_counter() - last_yield > YIELD_S:
+                            await asyncio.sleep(0)  # let a signal handler run
+                            last_yield = time.perf_counter()
+                            if self._stop_requested:
+                                break
+                    self._rx = None  # (the injector keeps the arrival: what finish() flushes was built from it)
                     self.batches += 1
                     self._last_batch_wall = time.monotonic()
                 elif isinstance(item, LinkStatus):
                     self._on_status(item)
+                if time.perf_counter() - last_yield > YIELD_S:
+                    await asyncio.sleep(0)
+                    last_yield = time.perf_counter()
         finally:
             for sig in sigs:
                 loop.remove_signal_handler(sig)
             housekeeping.cancel()
             self.notifier.stopping()
-            await asyncio.to_thread(self.link.stop)
-            while not queue.empty():  # statuses posted while stopping
+            await asyncio.to_thread(self.link.stop, 1.0)
+            while not queue.empty():  # statuses posted while stopping (the backlog of data is left)
                 item = queue.get_nowait()
                 if isinstance(item, LinkStatus):
                     self._on_status(item)
+                elif isinstance(item, Batch):
+                    self.shed["batches_left_at_stop"] += 1
             self.pipeline.finish()
             self.notifier.close()
         self.stopped_by = reasons[0] if reasons else None
         return self.stopped_by
+
+    def _catch_up(self, first: Batch, queue: asyncio.Queue) -> tuple[Batch, list]:
+        """Behind the link: every queued batch at once, IMU samples coalesced; returns the merged batch (its
+        arrival time: the newest input's) and the link statuses (and a stop) that were queued between them."""
+        batches, other = [first], []
+        while not queue.empty() and len(batches) < MAX_DRAIN:
+            nxt = queue.get_nowait()
+            (batches if isinstance(nxt, Batch) else other).append(nxt)
+        events = [ev for b in batches for ev in b.events]
+        merged = coalesce_imu(events)
+        n_imu_in = sum(isinstance(e, ImuSample) for e in events)
+        n_imu_out = sum(isinstance(e, ImuSample) for e in merged)
+        self.shed["batches_merged"] += len(batches) - 1
+        self.shed["imu_samples_in"] += n_imu_in
+        self.shed["imu_samples_coalesced"] += n_imu_in - n_imu_out
+        if not self._behind:
+            self._behind = True
+            self.shed["episodes"] += 1
+            lag = time.perf_counter() - first.recv_perf_s
+            self._log(f"companion: {lag:.2f} s behind the link: coalescing IMU samples to catch up")
+        last = batches[-1]
+        return Batch(last.recv_perf_s, merged, last.trigger), other
+
+    def _shed_text(self) -> str:
+        s = self.shed
+        return (f"{s['imu_samples_coalesced']} of {s['imu_samples_in']} IMU samples coalesced, "
+                f"{s['batches_merged']} batches merged, {s['episodes']} episodes")
 
     async def _housekeeping(self) -> None:
         """Watchdog pings and closing the MCAP chunk when the link goes quiet."""
@@ -169,6 +239,8 @@ class Runtime:
             meta[f"latency.{trig}.p99_ms"] = f"{percentile_ms(vals, 99):.3f}"
         for k, v in sorted(self.link.counts.items()):
             meta[f"link.{k}"] = str(v)
+        for k, v in sorted(self.shed.items()):
+            meta[f"shed.{k}"] = str(v)
         return meta
 
     def summary_lines(self) -> list[str]:
@@ -177,9 +249,40 @@ class Runtime:
             lines += self.gravity_stage.summary_lines()
         ls = ", ".join(f"{k} {v}" for k, v in sorted(self.link.counts.items()))
         lines.append(f"link         {self.link.messages_in} messages in; events: {ls or 'none'}")
+        if self.shed.get("episodes"):
+            lines.append(f"load shed    behind the link {self.shed['episodes']} times: {self._shed_text()}")
         for trig, vals in sorted(self.latency_s.items()):
             lines.append(
                 f"latency      {trig} -> GPS_INPUT: p50 {percentile_ms(vals, 50):.2f} ms, "
                 f"p99 {percentile_ms(vals, 99):.2f} ms over {len(vals)}"
             )
         return lines
+
+
+def coalesce_imu(events: list[Event]) -> list[Event]:
+    """Each run of IMU samples (per IMU) between other events -> one sample: the mean, at the run's last time.
+
+    The navigator holds a sample over the interval since the previous one, so the mean held over the whole run
+    integrates the same velocity and angle change to first order; other events keep their order and place."""
+    out: list[Event] = []
+    runs: dict[int, list[ImuSample]] = {}
+
+    def flush() -> None:
+        for run in runs.values():
+            if len(run) == 1:
+                out.append(run[0])
+                continue
+            n = float(len(run))
+            acc = tuple(sum(s.accel_frd_mps2[i] for s in run) / n for i in range(3))
+            gyr = tuple(sum(s.gyro_frd_radps[i] for s in run) / n for i in range(3))
+            out.append(replace(run[-1], accel_frd_mps2=acc, gyro_frd_radps=gyr))
+        runs.clear()
+
+    for ev in events:
+        if isinstance(ev, ImuSample):
+            runs.setdefault(ev.imu_index, []).append(ev)
+        else:
+            flush()
+            out.append(ev)
+    flush()
+    return out

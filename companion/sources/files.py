@@ -128,24 +128,46 @@ class DataflashReader(LogReader):
 
     def __init__(self, path: str | os.PathLike) -> None:
         super().__init__(path)
-        from pymavlink import DFReader
-
-        from companion.mavlink.dataflash import WANTED, DataflashDecoder
+        from companion.mavlink.dataflash import PYMAVLINK_SAID, WANTED, DataflashDecoder, log_starts
 
         self._wanted = WANTED
+        self._said = PYMAVLINK_SAID
+        self._failed_before = {k: v for k, v in PYMAVLINK_SAID.items() if k.startswith("Failed")}
+        # logs one after another in one file: each is read with its own formats, on one vehicle clock (the second's
+        # time going back is a reboot, forward a gap)
+        starts = log_starts(str(self.path))
+        self._segments = [(a, b) for a, b in zip(starts, starts[1:] + [self.size_bytes])]
+        self._base = 0
+        if len(self._segments) > 1:
+            self.info.warnings.append(f"{len(self._segments)} logs one after another (a new FMT block at byte "
+                                      f"{', '.join(str(a) for a, _ in self._segments[1:])}): read in turn")
+        self._open_segment(0)
+        self._decoder = DataflashDecoder()
+
+    def _open_segment(self, k: int) -> None:
+        from companion.mavlink.dataflash import resync_reader
+
+        start, end = self._segments[k]
+        self._segment, self._base = k, start
         noise = io.StringIO()  # DFReader prints "bad header" lines on stderr; count them instead
+        window = None if len(self._segments) == 1 else (start, end)
         try:
             with contextlib.redirect_stderr(noise), contextlib.redirect_stdout(noise):
-                self._log = DFReader.DFReader_binary(str(self.path), zero_time_base=False)
+                self._log = resync_reader(str(self.path), window)
         except Exception as err:  # pymavlink raises assorted errors on garbage
             raise SourceError(f"{self.path}: not a readable dataflash log ({err.__class__.__name__}: {err})") from None
         if not getattr(self._log, "formats", None) or len(self._log.formats) <= 1:
             raise SourceError(f"{self.path}: dataflash log without message formats (FMT); damaged or not a log")
         bad = noise.getvalue().count("bad header")
-        if bad:
+        skipped = getattr(self._log, "skipped_bytes", 0)
+        if skipped:
+            self.info.warnings.append(
+                f"skipped {skipped} bytes in {self._log.skipped_stretches} stretches that are no dataflash records "
+                f"(a bad record header or type); reading went on at the next record")
+        elif bad:
             self.info.warnings.append(f"skipped {bad} corrupt bytes between records")
-        self._check_tail()
-        self._decoder = DataflashDecoder()
+        if k == len(self._segments) - 1:
+            self._check_tail()
 
     def _check_tail(self) -> None:
         """Say when the last record is cut short or an unparsable stretch ends the file."""
@@ -153,8 +175,18 @@ class DataflashReader(LogReader):
         formats = log.formats
         last_start, last_end = 0, 0
         for mtype, offs in enumerate(getattr(log, "offsets", [])):
-            if offs and mtype in formats and offs[-1] >= last_start:
-                last_start, last_end = offs[-1], offs[-1] + formats[mtype].len
+            if offs and mtype in formats and offs[-1] + self._base >= last_start:
+                last_start, last_end = offs[-1] + self._base, offs[-1] + self._base + formats[mtype].len
+        tail = self.size_bytes - last_end
+        if 0 < tail <= 528 and last_end + 3 <= self.size_bytes:
+            with open(self.path, "rb") as f:
+                f.seek(last_end)
+                head = f.read(3)
+            fmt = formats.get(head[2]) if head[:2] == DATAFLASH_MAGIC else None
+            if fmt is not None and fmt.len > tail:
+                last_start, last_end = last_end, last_end + fmt.len
+        elif 0 < tail < 3:
+            last_start, last_end = last_end, last_end + 3
         if last_end > self.size_bytes:
             self.info.warnings.append(
                 f"truncated: the last record (at byte {last_start}) needs {last_end - last_start} bytes but the "
@@ -166,14 +198,35 @@ class DataflashReader(LogReader):
             )
 
     def offset(self) -> int:
-        return int(getattr(self._log, "offset", 0))
+        return self._base + int(getattr(self._log, "offset", 0))
 
     def _next_events(self) -> list[Event] | None:
-        msg = self._read_message(lambda: self._log.recv_match(type=self._wanted))
-        return None if msg is None else self._decoder.decode(msg)
+        try:
+            msg = self._log.recv_match(type=self._wanted)
+        except Exception as err:  # noqa: BLE001 - pymavlink raises assorted errors on corrupt data
+            self._parse_failed(err)
+            return None
+        if msg is None:
+            if self._segment + 1 < len(self._segments):
+                self._log.close()
+                self._open_segment(self._segment + 1)
+                return self._decoder.flush()  # a GPS row waiting for its GPA does not wait across logs
+            return None
+        self.messages_read += 1
+        return self._decoder.decode(msg)
 
     def _final_events(self) -> list[Event]:
         evs = self._decoder.flush()
+        failed = {k[len("Failed "):]: n - self._failed_before.get(k, 0) for k, n in self._said.items()
+                  if k.startswith("Failed ") and n > self._failed_before.get(k, 0)}
+        if failed:
+            which = ", ".join(f"{n} {name}" for name, n in sorted(failed.items()))
+            self.info.warnings.append(f"skipped records pymavlink could not parse ({which}): a format that does not "
+                                      "fit its records (a damaged FMT?)")
+        damage = ("without its time or axes", "malformed", "instance out of range")
+        for why, n in sorted(self._decoder.dropped.items()):
+            if any(d in why for d in damage):
+                self.info.warnings.append(f"skipped {n} rows that do not fit their format: {why}")
         if self._decoder.firmware:
             self.info.details["firmware"] = self._decoder.firmware
         for why, n in sorted(self._decoder.dropped.items()):
@@ -213,6 +266,16 @@ class TlogReader(LogReader):
                 return self._decoder.decode(msg, msg._timestamp)
 
     def _final_events(self) -> list[Event]:
+        try:
+            pending = int(self._log.mav.buf_len())  # bytes of a frame the parser was still waiting for the rest of
+        except (AttributeError, TypeError, ValueError):
+            pending = 0
+        if pending:
+            self.info.warnings.append(
+                f"truncated: the file ends {pending} bytes into a MAVLink frame (at byte {self.size_bytes - pending})")
+        bad = self._decoder.dropped.get("bad frame", 0)
+        if bad:
+            self.info.warnings.append(f"skipped {bad} corrupt frames (bad CRC or garbage between frames)")
         for why, n in sorted(self._decoder.dropped.items()):
             self.info.warnings.append(f"dropped {n} messages: {why}")
         if self._decoder.target_system is not None:

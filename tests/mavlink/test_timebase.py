@@ -147,3 +147,55 @@ def test_gps_at_the_limits_of_its_integers_is_no_fix(lat_e7, lon_e7, alt_mm):
     dec.decode(_wire(mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 0, 3)), 0.0)
     (fix,) = dec.decode(_wire(mavlink.MAVLink_gps_raw_int_message(5_000_000, 3, lat_e7, lon_e7, alt_mm, 90, 120, 0, 0, 10)), 5.0)
     assert not fix.has_position and fix.fix_type < 2 and dec.dropped["GPS position out of range"] == 1
+
+
+def test_clock_one_message_far_ahead_is_dropped_and_counted_not_a_gap():
+    c = VehicleClock()
+    for b in np.arange(0.0, 100.0, 0.02):
+        c.to_vehicle(float(b))
+    assert c.to_vehicle(1100.0) == (None, None)  # a bit flip: 1000 s ahead
+    assert c.held_ahead == 1 and c.last_hold == "ahead"
+    t, rb = c.to_vehicle(100.02)
+    assert rb is None and t == pytest.approx(100.02) and c.max_boot_s == pytest.approx(100.02)
+    assert c.gaps == 0
+
+
+def test_clock_forward_jump_moves_only_on_consistent_messages():
+    c = VehicleClock()
+    for b in np.arange(0.0, 10.0, 0.02):
+        c.to_vehicle(float(b))
+    assert c.to_vehicle(40.0) == (None, None)
+    assert c.to_vehicle(40.02) == (None, None)
+    t, rb = c.to_vehicle(40.04)  # three in a row agree: the log really jumped (logging paused)
+    assert rb is None and t == pytest.approx(40.04) and c.gaps == 1 and c.held_ahead == 2
+
+
+def test_clock_forward_jump_the_receive_clock_shows_is_accepted_at_once():
+    c = VehicleClock()
+    for i, b in enumerate(np.arange(0.0, 10.0, 0.1)):
+        c.to_vehicle(float(b), recv_s=1000.0 + i * 0.1)
+    t, rb = c.to_vehicle(40.0, recv_s=1000.0 + 9.9 + 30.0)  # link silent for 30 s
+    assert t == pytest.approx(40.0) and c.held_ahead == 0
+
+
+def test_clock_non_physical_boot_time_is_dropped():
+    c = VehicleClock()
+    c.to_vehicle(1.0)
+    for bad in (float("nan"), float("inf"), -5.0, 2.0**64 * 1e-6):
+        assert c.to_vehicle(bad) == (None, None) and c.last_hold == "invalid"
+    assert c.invalid == 4 and c.to_vehicle(1.1)[0] == pytest.approx(1.1)
+
+
+def test_decoder_one_attitude_30_s_ahead_is_no_reboot_and_no_jump():
+    dec = MavlinkDecoder()
+    dec.decode(_wire(mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 0, 3)), 0.0)
+    out = []
+    for i in range(200):
+        ms = 100_000 + i * 100
+        if i == 100:
+            ms += 30_000  # one message stamped 30 s ahead
+        out += dec.decode(_wire(mavlink.MAVLink_attitude_message(ms, 0.1, 0.2, 0.3, 0, 0, 0)), 10.0 + i * 0.1)
+    assert not [e for e in out if isinstance(e, Reboot)]
+    t = np.array([e.t_s for e in out if isinstance(e, Attitude)])
+    assert len(t) == 199 and np.all(np.diff(t) > 0) and np.max(np.diff(t)) < 0.25
+    assert dec.dropped["time jumped ahead (one outlier, or a gap not yet confirmed)"] == 1
