@@ -107,7 +107,8 @@ class InsFilter:
         dt = te - ins.t_s
         return np.array([n + ins.vn * dt, e + ins.ve * dt, d + ins.vd * dt]), np.array([ins.vn, ins.ve, ins.vd])
 
-    def _ins_position_update(self, t: float, z, sh: float, sv: float, kind: str, gate_sigma=None) -> bool:
+    def _ins_position_update(self, t: float, z, sh: float, sv: float, kind: str, gate_sigma=None,
+                             force_reset: bool = False) -> bool:
         self._ins_predict(max(t, self._kf_t))
         H = np.zeros((3, 15))
         H[:, 0:3] = np.eye(3)
@@ -115,32 +116,12 @@ class InsFilter:
         R_gate = None if gate_sigma is None else np.diag([gate_sigma[0] ** 2, gate_sigma[0] ** 2, gate_sigma[1] ** 2])
         ok = self._ins_apply(H, y, np.diag([sh**2, sh**2, sv**2]), kind, t, R_gate)
         if kind == "gnss_pos":
-            ok = self._gate_bookkeeping(t, ok, y, sh, sv)
+            ok = self._gate_bookkeeping(t, ok, y, sh, sv, force_reset)
         if ok:
             self._last_innov = tuple(float(x) for x in y)
         else:
             self._n_rejected += 1
         return ok
-
-    def _gate_bookkeeping(self, t: float, ok: bool, y, sh: float, sv: float) -> bool:
-        """Persisting rejection is a real position step, not a glitch: reset position to GNSS."""
-        if ok:
-            self._reject_since = None
-            return True
-        if self._reject_since is None:
-            self._reject_since = t
-            return False
-        if t - self._reject_since < self.config.gate_reset_s:
-            return False
-        self._reject_since = None
-        if self.mode == "ins":
-            kf = self._kf
-            kf.P[0:3, :] = 0.0
-            kf.P[:, 0:3] = 0.0
-            kf.P[0:3, 0:3] = np.diag([sh**2, sh**2, sv**2])
-            kf.P[3:6, 3:6] += np.eye(3)
-            self._correct_ins(y, (0, 0, 0), (0, 0, 0), (0, 0, 0), (0, 0, 0))
-        return True
 
     def _ins_velocity_update(self, t: float, vel, sigma: float) -> None:
         self._ins_predict(max(t, self._kf_t))
@@ -170,4 +151,6 @@ class InsFilter:
             a_rms = math.sqrt(self._al_acc2 / self._al_w) if self._al_w > 0 else 0.0
             s_tilt2 += (2.0 * math.sin(0.5 * abs(self.ahrs_heading_offset_rad)) * a_rms / 9.8) ** 2
         R = np.diag([s_tilt2, s_tilt2, s_yaw**2])
-        self._ins_apply(H, y, R, "attitude", ev.t_s)
+        ok = self._ins_apply(H, y, R, "attitude", ev.t_s)
+        if self.config.reset_after_rejection:
+            self._attitude_bookkeeping(ev.t_s, ok, y)

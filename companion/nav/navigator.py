@@ -60,6 +60,7 @@ from companion.nav.outputs import (
 from companion.constants import receiver_sigma
 from companion.events import Attitude, AutopilotAltitude, Event, GnssFix, ImuSample, PositionFix
 from companion.nav.frame import LocalFrame
+from companion.nav.recovery import Recovery
 from companion.nav.reorder import ReorderBuffer
 from companion.pipeline.stage import Stage
 
@@ -70,7 +71,7 @@ __all__ = ["Navigator", "NavigatorConfig", "run_navigator"]
 _PRIO = {ImuSample: 0, Attitude: 1, GnssFix: 2}
 
 
-class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid, Stage):
+class Navigator(InsFilter, KinematicFilter, Recovery, AhrsHeadingCheck, HoldPrior, BaroAid, Stage):
     """Streaming gap-filling stage: ``process(event) -> list[output]``, then ``finish()``."""
 
     def __init__(self, config: NavigatorConfig | None = None) -> None:
@@ -80,7 +81,8 @@ class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid
         self._reason_key = "init"
         self.predictor = KnnPredictor(c.knn)
         self.frame: LocalFrame | None = None
-        self._reorder = ReorderBuffer(c.reorder_window_s, _PRIO, default_priority=3)
+        self._reorder = ReorderBuffer(c.reorder_window_s, _PRIO, default_priority=3, outlier_s=c.future_outlier_s,
+                                      confirm_n=c.future_confirm_n)
         self._out: list[Event] = []
         self._t0: float | None = None  # first event time
         self._imu_times: deque[float] = deque()
@@ -93,7 +95,7 @@ class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid
         self._alt_off_t = -math.inf
         self._n_pred_fused = 0
         self._pred_anchor: float | None = None
-        self._reject_since: float | None = None
+        self._recovery_init()
         # INS filter
         self.ins: StrapdownIns | None = None
         self._kf: KalmanFilter | None = None
@@ -140,8 +142,13 @@ class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid
         return out
 
     def metadata(self) -> dict[str, str]:
-        """The mode the navigator ended in and why (INS, or the kinematic fallback)."""
-        return {k: str(v) for k, v in (("mode", self.mode), ("mode_reason", self.mode_reason)) if v}
+        """The mode the navigator ended in and why (INS, or the kinematic fallback); resets and dropped outliers."""
+        meta = {k: str(v) for k, v in (("mode", self.mode), ("mode_reason", self.mode_reason)) if v}
+        if self.resets:
+            meta["resets"] = ", ".join(f"{k}={n}" for k, n in sorted(self.resets.items()))
+        if self._reorder.dropped_future:
+            meta["dropped_future_events"] = str(self._reorder.dropped_future)
+        return meta
 
     def finish(self) -> list[Event]:
         """Flush the reorder buffer and emit the remaining outputs up to the last event time."""
@@ -158,6 +165,7 @@ class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid
         t = ev.t_s
         if self._t0 is None:
             self._t0 = t
+        self._check_stream_gap(t)
         if self._next_tick is not None:
             self._run_ticks(t, inclusive=False)
         if isinstance(ev, ImuSample):
@@ -166,6 +174,9 @@ class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid
         elif isinstance(ev, GnssFix):
             if ev.has_position and ev.alt_msl_m is not None and ev.instance == self.config.gnss_instance:
                 self._on_fix(ev)
+        elif self._reinit_pending is not None:
+            if isinstance(ev, Attitude):
+                self._att = ev  # aids wait for the re-initialisation
         elif isinstance(ev, PositionFix):
             self._on_position_fix(ev)
         elif isinstance(ev, AutopilotAltitude):
@@ -207,7 +218,7 @@ class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid
             self._sf_dv[0] += (ac[0] * a[0] + ac[1] * a[1] + ac[2] * a[2]) * dt
             self._sf_dv[1] += (ac[3] * a[0] + ac[4] * a[1] + ac[5] * a[2]) * dt
         ins = self.ins
-        if ins is None or self.mode != "ins":
+        if ins is None or self.mode != "ins" or self._reinit_pending is not None:
             return
         dt = t - ins.t_s
         if dt > c.max_imu_step_s:
@@ -263,12 +274,17 @@ class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid
         vel = None
         if ev.vel_n_mps is not None and ev.vel_e_mps is not None:
             vel = (ev.vel_n_mps, ev.vel_e_mps, ev.vel_d_mps if ev.vel_d_mps is not None else math.nan)
+        gnss_gap = self._note_fix(ev, vel)
+        if self._reinit_pending is not None:
+            self._reinit(t, z, vel)
+            self._fix_accepted(t, z, sh, sv, vel)
+            return
         self._update_mode(t, ev, z, vel)
         accepted = True
         if c.ahrs_check and vel is not None:
             self._ahrs_check(t, vel)
         if self.mode == "ins":
-            accepted = self._ins_position_update(t, z, sh, sv, "gnss_pos", (gh, gv))
+            accepted = self._ins_position_update(t, z, sh, sv, "gnss_pos", (gh, gv), gnss_gap)
             if accepted and vel is not None and c.fuse_gnss_velocity and math.isfinite(vel[2]):
                 self._ins_velocity_update(t, vel, c.gnss_vel_sigma_mps)
         if self._kin is None:
@@ -278,13 +294,16 @@ class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid
             if self.mode != "ins":
                 accepted = acc_k
         if accepted:
-            self._used.add("gnss")
-            self._last_fix_t = t
-            if c.hold_prior:
-                self._learn_motion(t, z, sh, sv)
-            self.predictor.add_fix(t, z, sh, sv, None if vel is None or not math.isfinite(vel[2]) else vel)
+            self._fix_accepted(t, z, sh, sv, vel)
         if self._next_tick is None:
             self._next_tick = math.floor(t / self._tick_dt) + 1
+
+    def _fix_accepted(self, t: float, z, sh: float, sv: float, vel) -> None:
+        self._used.add("gnss")
+        self._last_fix_t = t
+        if self.config.hold_prior:
+            self._learn_motion(t, z, sh, sv)
+        self.predictor.add_fix(t, z, sh, sv, None if vel is None or not math.isfinite(vel[2]) else vel)
 
     def _on_position_fix(self, ev: PositionFix) -> None:
         """A non-GNSS horizontal position measurement (e.g. a gravity-matching fix) at its own epoch.
@@ -360,14 +379,15 @@ class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid
         self._set_mode(t, "kinematic", reason, key)
 
     # ------------------------------------------------------------------ INS filter
-    def _ins_init(self, t: float, z, vel) -> None:
+    def _ins_init(self, t: float, z, vel, t_ins: float | None = None) -> None:
         c = self.config
         lat, lon, alt = self.frame.geodetic_tuple(*z)
         v = (0.0, 0.0, 0.0)
         if vel is not None:
             v = (vel[0], vel[1], vel[2] if math.isfinite(vel[2]) else 0.0)
         a = self._att
-        t_ins = self._last_imu_t if self._last_imu_t is not None else t
+        if t_ins is None:
+            t_ins = self._last_imu_t if self._last_imu_t is not None else t
         self.ins = StrapdownIns(t_ins, lat, lon, alt, v, a.roll_rad, a.pitch_rad, a.yaw_rad)
         self._hist.clear()
         kf = KalmanFilter(dim_x=15, dim_z=3)
@@ -394,6 +414,8 @@ class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid
 
     def _tick(self, tg: float) -> None:
         c = self.config
+        if self._reinit_pending is not None:
+            return  # after a stream gap nothing is known until the next fix re-initialises
         # predictor point (Aziez 2021: 9 points between 1 Hz fixes, continuing through blockages)
         if self._last_fix_t is not None and tg - self._last_fix_t >= max(c.predictor_min_age_s, 1e-9):
             p = self.predictor.predict(tg)
