@@ -11,11 +11,8 @@ import numpy as np
 
 from companion.events import Attitude
 from companion.nav.ins import dcm_from_quat, quat_from_euler
+from companion.nav.measurements import AttitudeMeasurement, InsView, Measurement, PositionMeasurement, gate, skew
 from companion.nav.outputs import MeasurementUpdate
-
-
-def _skew(v) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 class InsFilter:
@@ -37,7 +34,7 @@ class InsFilter:
         C = ins.dcm()
         F = np.zeros((15, 15))
         F[0:3, 3:6] = np.eye(3)
-        F[3:6, 6:9] = -_skew(f)
+        F[3:6, 6:9] = -skew(f)
         F[3:6, 9:12] = -C
         F[6:9, 12:15] = -C
         F[9:15, 9:15] = -np.eye(6) / c.bias_tau_s
@@ -52,24 +49,26 @@ class InsFilter:
         self._kf.predict(F=phi, Q=np.diag(q))
         self._kf_t = t
 
-    def _ins_apply(self, H: np.ndarray, z: np.ndarray, R: np.ndarray, kind: str, t: float,
-                   R_gate: np.ndarray | None = None, gate_chi2: float | None = None) -> bool:
+    def _ins_apply(self, m: Measurement) -> tuple[bool, np.ndarray]:
+        """The one update of the error-state KF (eqs. 7, 8, 10, filterpy's algebra): predict to the measurement,
+        gate, record a MeasurementUpdate, update and feed the error estimate back into the INS."""
+        self._ins_predict(max(m.t_s, self._kf_t))
+        pos, vel = self._ins_state_at(m.t_s, m.delay_s)
+        y, H, R = m.compute_ins(InsView(pos, vel, self.ins.dcm()))
         kf = self._kf
-        S = H @ kf.P @ H.T + (R if R_gate is None else np.maximum(R, R_gate))
-        nis = float(z @ np.linalg.solve(S, z))
-        gate = self.config.gate_chi2 if gate_chi2 is None else gate_chi2
-        ok = nis <= gate
+        Rg = m.R_gate()
+        nis, ok = gate(y, H @ kf.P @ H.T + (R if Rg is None else np.maximum(R, Rg)), m.gate_chi2)
         self._out.append(
-            MeasurementUpdate(t, kind, "ins", tuple(float(x) for x in z), tuple(float(x) for x in np.sqrt(np.diag(R))),
-                              nis, gate, ok)
+            MeasurementUpdate(m.t_s, m.kind, "ins", tuple(float(x) for x in y),
+                              tuple(float(x) for x in np.sqrt(np.diag(R))), nis, m.gate_chi2, ok)
         )
         if not ok:
-            return False
-        kf.update(z.reshape(-1, 1), R=R, H=H)
+            return False, y
+        kf.update(y.reshape(-1, 1), R=R, H=H)
         dx = kf.x.ravel()
         self._correct_ins(dx[0:3], dx[3:6], dx[6:9], dx[9:12], dx[12:15])
         kf.x = np.zeros((15, 1))
-        return True
+        return True, y
 
     def _correct_ins(self, dp, dv, psi, dba, dbg) -> None:
         """Feed an error estimate back into the INS and shift the delay history with it."""
@@ -107,50 +106,33 @@ class InsFilter:
         dt = te - ins.t_s
         return np.array([n + ins.vn * dt, e + ins.ve * dt, d + ins.vd * dt]), np.array([ins.vn, ins.ve, ins.vd])
 
-    def _ins_position_update(self, t: float, z, sh: float, sv: float, kind: str, gate_sigma=None,
-                             force_reset: bool = False) -> bool:
-        self._ins_predict(max(t, self._kf_t))
-        H = np.zeros((3, 15))
-        H[:, 0:3] = np.eye(3)
-        y = np.asarray(z) - self._ins_state_at(t)[0]
-        R_gate = None if gate_sigma is None else np.diag([gate_sigma[0] ** 2, gate_sigma[0] ** 2, gate_sigma[1] ** 2])
-        ok = self._ins_apply(H, y, np.diag([sh**2, sh**2, sv**2]), kind, t, R_gate)
-        if kind == "gnss_pos":
-            ok = self._gate_bookkeeping(t, ok, y, sh, sv, force_reset)
+    def _ins_position_update(self, m: PositionMeasurement, force_reset: bool = False) -> bool:
+        ok, y = self._ins_apply(m)
+        if m.kind == "gnss_pos":
+            ok = self._gate_bookkeeping(m.t_s, ok, y, m.sigma_h_m, m.sigma_v_m, force_reset)
         if ok:
             self._last_innov = tuple(float(x) for x in y)
         else:
             self._n_rejected += 1
         return ok
 
-    def _ins_velocity_update(self, t: float, vel, sigma: float) -> None:
-        self._ins_predict(max(t, self._kf_t))
-        H = np.zeros((3, 15))
-        H[:, 3:6] = np.eye(3)
-        y = np.asarray(vel, dtype=float) - self._ins_state_at(t)[1]
-        self._ins_apply(H, y, np.eye(3) * sigma**2, "gnss_vel", t)
-
     def _ins_attitude_update(self, ev: Attitude) -> None:
         c = self.config
-        self._ins_predict(max(ev.t_s, self._kf_t))
         fuse_yaw = c.fuse_attitude_yaw and self.ahrs_consistent
         # Tilt-only measurement: the autopilot's roll/pitch fix the gravity direction in the body frame
         # whatever its heading, so the measured attitude is built with the INS's own heading. (Built with
         # the autopilot's heading, a heading disagreement of d rotates and mixes the roll/pitch innovations
-        # through the small-angle extraction below: at d ~ 90 deg, as in the Erle PXF log, a roll error was
+        # through the small-angle extraction: at d ~ 90 deg, as in the Erle PXF log, a roll error was
         # read as a pitch error.)
         yaw_meas = ev.yaw_rad if fuse_yaw else self.ins.euler()[2]
         c_meas = dcm_from_quat(quat_from_euler(ev.roll_rad, ev.pitch_rad, yaw_meas))
-        E = c_meas @ self.ins.dcm().T  # = I + [psi x] for small psi
-        y = 0.5 * np.array([E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]])
-        H = np.zeros((3, 15))
-        H[:, 6:9] = np.eye(3)
         s_yaw = c.att_sigma_yaw_rad if fuse_yaw else 1e3  # 1e3 rad: no heading information
         s_tilt2 = c.att_sigma_tilt_rad**2
         if not self.ahrs_consistent:  # tilt error induced by the AHRS heading offset (see ahrs_check)
             a_rms = math.sqrt(self._al_acc2 / self._al_w) if self._al_w > 0 else 0.0
             s_tilt2 += (2.0 * math.sin(0.5 * abs(self.ahrs_heading_offset_rad)) * a_rms / 9.8) ** 2
-        R = np.diag([s_tilt2, s_tilt2, s_yaw**2])
-        ok = self._ins_apply(H, y, R, "attitude", ev.t_s)
-        if self.config.reset_after_rejection:
+        m = AttitudeMeasurement(ev.t_s, "attitude", c_meas=c_meas, var_rad2=(s_tilt2, s_tilt2, s_yaw**2),
+                                gate_chi2=c.gate_chi2)
+        ok, y = self._ins_apply(m)
+        if c.reset_after_rejection:
             self._attitude_bookkeeping(ev.t_s, ok, y)

@@ -49,6 +49,7 @@ from companion.nav.ins import StrapdownIns, dcm_from_quat, quat_from_euler
 from companion.nav.ins_filter import InsFilter
 from companion.nav.kinematic import KinematicFilter
 from companion.nav.knn_predictor import KnnPredictor
+from companion.nav.measurements import HorizontalPositionMeasurement, PositionMeasurement, VelocityMeasurement
 from companion.nav.monitors import AhrsHeadingCheck, HoldPrior
 from companion.nav.outputs import (
     FrameInfo,
@@ -283,14 +284,15 @@ class Navigator(InsFilter, KinematicFilter, Recovery, AhrsHeadingCheck, HoldPrio
         accepted = True
         if c.ahrs_check and vel is not None:
             self._ahrs_check(t, vel)
+        m = PositionMeasurement(t, "gnss_pos", z, sh, sv, (gh, gv), c.gate_chi2)
         if self.mode == "ins":
-            accepted = self._ins_position_update(t, z, sh, sv, "gnss_pos", (gh, gv), gnss_gap)
+            accepted = self._ins_position_update(m, gnss_gap)
             if accepted and vel is not None and c.fuse_gnss_velocity and math.isfinite(vel[2]):
-                self._ins_velocity_update(t, vel, c.gnss_vel_sigma_mps)
+                self._ins_apply(VelocityMeasurement(t, "gnss_vel", vel, c.gnss_vel_sigma_mps, c.gate_chi2))
         if self._kin is None:
             self._kin_init(t, z, vel)
         else:
-            acc_k = self._kin_update(t, z, sh, sv, "gnss_pos", record=self.mode != "ins", gate_sigma=(gh, gv))
+            acc_k = self._kin_update(m, record=self.mode != "ins")
             if self.mode != "ins":
                 accepted = acc_k
         if accepted:
@@ -316,29 +318,14 @@ class Navigator(InsFilter, KinematicFilter, Recovery, AhrsHeadingCheck, HoldPrio
         if not (math.isfinite(ev.lat_deg) and math.isfinite(ev.lon_deg) and sn > 0 and se > 0
                 and math.isfinite(sn) and math.isfinite(se)):
             return
-        t = ev.t_s
-        z = np.array(self.frame.ned_tuple(ev.lat_deg, ev.lon_deg, self._ref[2])[:2])
-        R = np.diag([sn**2, se**2])
+        z = self.frame.ned_tuple(ev.lat_deg, ev.lon_deg, self._ref[2])[:2]
+        m = HorizontalPositionMeasurement(ev.t_s, "position_fix", z, sn, se, self.config.position_fix_gate_chi2)
         if self.mode == "ins":
-            self._ins_predict(max(t, self._kf_t))
-            H = np.zeros((2, 15))
-            H[:, 0:2] = np.eye(2)
-            y = z - self._ins_state_at(t, delay_s=0.0)[0][:2]
-            ok = self._ins_apply(H, y, R, "position_fix", t, gate_chi2=self.config.position_fix_gate_chi2)
+            ok, y = self._ins_apply(m)
         else:
             if self._kin is None:
                 return
-            self._kin_predict(max(t, self._kin_t))
-            kf = self._kin
-            H = np.zeros((2, 6))
-            H[:, 0:2] = np.eye(2)
-            y = z - kf.x.ravel()[0:2]
-            nis = float(y @ np.linalg.solve(H @ kf.P @ H.T + R, y))
-            ok = nis <= self.config.position_fix_gate_chi2
-            self._out.append(MeasurementUpdate(t, "position_fix", "kinematic", tuple(float(v) for v in y), (sn, se),
-                                               nis, self.config.position_fix_gate_chi2, ok))
-            if ok:
-                kf.update(z.reshape(-1, 1), R=R, H=H)
+            ok, y, _nis = self._kin_apply(m, record=True)
         if ok:
             self._used.add("position_fix")
             self._last_innov = (float(y[0]), float(y[1]), math.nan)
@@ -429,11 +416,9 @@ class Navigator(InsFilter, KinematicFilter, Recovery, AhrsHeadingCheck, HoldPrio
                     self._n_pred_fused = self._n_pred_fused + 1 if self._pred_anchor == self._last_fix_t else 1
                     self._pred_anchor = self._last_fix_t
                     infl = c.predictor_sigma_scale * (math.sqrt(self._n_pred_fused) if c.predictor_decorrelate else 1.0)
-                    sh, sv = p.sigma_h_m * infl, p.sigma_v_m * infl
-                    if self.mode == "ins":
-                        ok = self._ins_position_update(tg, p.ned_m, sh, sv, "predictor")
-                    else:
-                        ok = self._kin_update(tg, p.ned_m, sh, sv, "predictor", True)
+                    m = PositionMeasurement(tg, "predictor", p.ned_m, p.sigma_h_m * infl, p.sigma_v_m * infl,
+                                            gate_chi2=c.gate_chi2)
+                    ok = self._ins_position_update(m) if self.mode == "ins" else self._kin_update(m, True)
                     if ok:
                         self._used.add("predictor")
         if self.mode == "init":
