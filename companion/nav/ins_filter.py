@@ -8,9 +8,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from filterpy.kalman import KalmanFilter
 
-from companion.events import Attitude
-from companion.nav.ins import dcm_from_quat, quat_from_euler
+from companion.events import Attitude, ImuSample
+from companion.nav.ins import StrapdownIns, dcm_from_quat, quat_from_euler
 from companion.nav.measurements import AttitudeMeasurement, InsView, Measurement, PositionMeasurement, gate, skew
 from companion.nav.outputs import MeasurementUpdate
 
@@ -136,3 +137,70 @@ class InsFilter:
         ok, y = self._ins_apply(m)
         if c.reset_after_rejection:
             self._attitude_bookkeeping(ev.t_s, ok, y)
+
+    # ------------------------------------------------------------------ IMU and initialisation
+    def _on_imu(self, ev: ImuSample) -> None:
+        c = self.config
+        t = ev.t_s
+        self._imu_times.append(t)
+        prev_t = self._last_imu_t
+        self._last_imu_t = t
+        ac = self._att_c
+        if ac is not None and prev_t is not None and 0 < t - prev_t <= c.max_imu_step_s:
+            dt = t - prev_t
+            a = ev.accel_frd_mps2
+            self._sf_dv[0] += (ac[0] * a[0] + ac[1] * a[1] + ac[2] * a[2]) * dt
+            self._sf_dv[1] += (ac[3] * a[0] + ac[4] * a[1] + ac[5] * a[2]) * dt
+        ins = self.ins
+        if ins is None or self.mode != "ins" or self._reinit_pending is not None:
+            return
+        dt = t - ins.t_s
+        if dt > c.max_imu_step_s:
+            # a stall in the log (e.g. ArduPilot stops logging ~2 s at arming): do not integrate one
+            # sample across it; bring the KF up to the gap start and widen velocity/attitude uncertainty
+            self._ins_predict(ins.t_s)
+            q = self._kf.P
+            for i in range(3, 6):
+                q[i, i] += (c.kinematic_accel_sigma_mps2 * dt) ** 2
+            for i in range(6, 9):
+                q[i, i] += (c.gyro_noise_radps_rthz**2) * dt + 1e-4
+            speed = math.sqrt(ins.vn**2 + ins.ve**2 + ins.vd**2)
+            for i in range(3):
+                q[i, i] += (speed * dt + 0.5 * c.kinematic_accel_sigma_mps2 * dt * dt) ** 2
+            ins.coast(t - 0.02)
+            self._kf_t = ins.t_s
+        if ins.step(t, ev.accel_frd_mps2, ev.gyro_frd_radps) > 0:
+            if c.gnss_delay_s > 0:
+                hist = self._hist
+                hist.append([t, *self.frame.ned_tuple(ins.lat_deg, ins.lon_deg, ins.h_m), ins.vn, ins.ve, ins.vd])
+                while hist[0][0] < t - c.gnss_delay_s - 0.2:
+                    hist.popleft()
+            f = ins.f_ned
+            self._f_sum[0] += f[0]
+            self._f_sum[1] += f[1]
+            self._f_sum[2] += f[2]
+            self._f_n += 1
+
+    def _ins_init(self, t: float, z, vel, t_ins: float | None = None) -> None:
+        c = self.config
+        lat, lon, alt = self.frame.geodetic_tuple(*z)
+        v = (0.0, 0.0, 0.0)
+        if vel is not None:
+            v = (vel[0], vel[1], vel[2] if math.isfinite(vel[2]) else 0.0)
+        a = self._att
+        if t_ins is None:
+            t_ins = self._last_imu_t if self._last_imu_t is not None else t
+        self.ins = StrapdownIns(t_ins, lat, lon, alt, v, a.roll_rad, a.pitch_rad, a.yaw_rad)
+        self._hist.clear()
+        kf = KalmanFilter(dim_x=15, dim_z=3)
+        sh, sv = 3.0, 5.0
+        kf.P = np.diag(
+            [sh**2, sh**2, sv**2] + [1.0] * 3 + [c.init_sigma_att_rad**2] * 2 + [c.init_sigma_yaw_rad**2]
+            + [c.accel_bias_sigma_mps2**2] * 3 + [c.gyro_bias_sigma_radps**2] * 3
+        )
+        self._kf = kf
+        self._kf_t = t_ins
+        if not self.ahrs_consistent and math.isfinite(self.ahrs_heading_offset_rad):
+            self._align_yaw(t_ins)
+        self._f_sum = [0.0, 0.0, 0.0]
+        self._f_n = 0
