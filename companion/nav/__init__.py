@@ -14,10 +14,12 @@ from companion.nav.outputs import (
     FusedState,
     MeasurementUpdate,
     ModeChange,
+    NavigatorReset,
     PredictorPoint,
 )
 
 __all__ = [
     "Navigator", "NavigatorConfig", "run_navigator", "KnnPredictor", "KnnConfig", "StrapdownIns",
-    "OUTPUT_TYPES", "FrameInfo", "FusedState", "MeasurementUpdate", "ModeChange", "PredictorPoint",
+    "OUTPUT_TYPES", "FrameInfo", "FusedState", "MeasurementUpdate", "ModeChange", "NavigatorReset",
+    "PredictorPoint",
 ]

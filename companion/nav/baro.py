@@ -5,10 +5,8 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
-from companion.constants import CHI2_1DOF_999
 from companion.events import AutopilotAltitude
+from companion.nav.measurements import AltitudeMeasurement
 
 
 class BaroAid:
@@ -32,8 +30,6 @@ class BaroAid:
             return
         if self._alt_off is None:
             return  # never seen beside GNSS: its datum is unknown
-        H = np.zeros((1, 15))
-        H[0, 2] = 1.0
-        y = np.array([(self._ref[2] - (ev.alt_msl_m - self._alt_off)) - down])
-        if self._ins_apply(H, y, np.array([[c.alt_sigma_m**2]]), "altitude", t, gate_chi2=CHI2_1DOF_999):
+        m = AltitudeMeasurement(t, "altitude", z_down_m=self._ref[2] - (ev.alt_msl_m - self._alt_off), sigma_m=c.alt_sigma_m)
+        if self._ins_apply(m)[0]:
             self._used.add("altitude")

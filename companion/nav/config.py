@@ -125,10 +125,25 @@ class NavigatorConfig:
     hold_prior_min_age_s: float = 1.5
     hold_prior_max_lag_s: int = 60
     hold_prior_tau_s: float = 120.0
+    # recovery (companion.nav.recovery): a stream gap (no event at all) longer than reinit_gap_s is not ticked
+    # through and re-initialises the filter at the next fix; the first fix after a GNSS gap that long resets
+    # position/velocity if outside the gate; reset_after_n_rejected consecutive (or gate_reset_s of) rejected good
+    # 3D fixes reset position/velocity to GNSS, att_reset_after_n_rejected rejected autopilot attitudes the tilt,
+    # with the fix's (the initial attitude's) variance x reset_cov_scale. An event more than future_outlier_s
+    # ahead of the stream is held until future_confirm_n consecutive events confirm the jump, else dropped.
+    reinit_gap_s: float = 5.0
+    reset_after_rejection: bool = True
+    reset_after_n_rejected: int = 30
+    att_reset_after_n_rejected: int = 50
+    reset_cov_scale: float = 4.0
+    future_outlier_s: float = 30.0
+    future_confirm_n: int = 3
 
     def __post_init__(self) -> None:
         if self.output_rate_hz <= 0 or self.min_imu_rate_hz <= 0:
             raise ValueError("rates must be positive")
+        if self.reinit_gap_s <= self.max_imu_step_s or self.future_outlier_s <= 0 or self.future_confirm_n < 1:
+            raise ValueError("reinit_gap_s must exceed max_imu_step_s; future_outlier_s > 0, future_confirm_n >= 1")
         if self.reorder_window_s < 0:
             raise ValueError("reorder_window_s must be >= 0")
         if self.gnss_sigma_model not in ("short_term", "accuracy"):

@@ -8,14 +8,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from filterpy.kalman import KalmanFilter
 
-from companion.events import Attitude
-from companion.nav.ins import dcm_from_quat, quat_from_euler
+from companion.events import Attitude, ImuSample
+from companion.nav.ins import StrapdownIns, dcm_from_quat, quat_from_euler
+from companion.nav.measurements import AttitudeMeasurement, InsView, Measurement, PositionMeasurement, gate, skew
 from companion.nav.outputs import MeasurementUpdate
-
-
-def _skew(v) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 class InsFilter:
@@ -37,7 +35,7 @@ class InsFilter:
         C = ins.dcm()
         F = np.zeros((15, 15))
         F[0:3, 3:6] = np.eye(3)
-        F[3:6, 6:9] = -_skew(f)
+        F[3:6, 6:9] = -skew(f)
         F[3:6, 9:12] = -C
         F[6:9, 12:15] = -C
         F[9:15, 9:15] = -np.eye(6) / c.bias_tau_s
@@ -52,24 +50,26 @@ class InsFilter:
         self._kf.predict(F=phi, Q=np.diag(q))
         self._kf_t = t
 
-    def _ins_apply(self, H: np.ndarray, z: np.ndarray, R: np.ndarray, kind: str, t: float,
-                   R_gate: np.ndarray | None = None, gate_chi2: float | None = None) -> bool:
+    def _ins_apply(self, m: Measurement) -> tuple[bool, np.ndarray]:
+        """The one update of the error-state KF (eqs. 7, 8, 10, filterpy's algebra): predict to the measurement,
+        gate, record a MeasurementUpdate, update and feed the error estimate back into the INS."""
+        self._ins_predict(max(m.t_s, self._kf_t))
+        pos, vel = self._ins_state_at(m.t_s, m.delay_s)
+        y, H, R = m.compute_ins(InsView(pos, vel, self.ins.dcm()))
         kf = self._kf
-        S = H @ kf.P @ H.T + (R if R_gate is None else np.maximum(R, R_gate))
-        nis = float(z @ np.linalg.solve(S, z))
-        gate = self.config.gate_chi2 if gate_chi2 is None else gate_chi2
-        ok = nis <= gate
+        Rg = m.R_gate()
+        nis, ok = gate(y, H @ kf.P @ H.T + (R if Rg is None else np.maximum(R, Rg)), m.gate_chi2)
         self._out.append(
-            MeasurementUpdate(t, kind, "ins", tuple(float(x) for x in z), tuple(float(x) for x in np.sqrt(np.diag(R))),
-                              nis, gate, ok)
+            MeasurementUpdate(m.t_s, m.kind, "ins", tuple(float(x) for x in y),
+                              tuple(float(x) for x in np.sqrt(np.diag(R))), nis, m.gate_chi2, ok)
         )
         if not ok:
-            return False
-        kf.update(z.reshape(-1, 1), R=R, H=H)
+            return False, y
+        kf.update(y.reshape(-1, 1), R=R, H=H)
         dx = kf.x.ravel()
         self._correct_ins(dx[0:3], dx[3:6], dx[6:9], dx[9:12], dx[12:15])
         kf.x = np.zeros((15, 1))
-        return True
+        return True, y
 
     def _correct_ins(self, dp, dv, psi, dba, dbg) -> None:
         """Feed an error estimate back into the INS and shift the delay history with it."""
@@ -107,67 +107,100 @@ class InsFilter:
         dt = te - ins.t_s
         return np.array([n + ins.vn * dt, e + ins.ve * dt, d + ins.vd * dt]), np.array([ins.vn, ins.ve, ins.vd])
 
-    def _ins_position_update(self, t: float, z, sh: float, sv: float, kind: str, gate_sigma=None) -> bool:
-        self._ins_predict(max(t, self._kf_t))
-        H = np.zeros((3, 15))
-        H[:, 0:3] = np.eye(3)
-        y = np.asarray(z) - self._ins_state_at(t)[0]
-        R_gate = None if gate_sigma is None else np.diag([gate_sigma[0] ** 2, gate_sigma[0] ** 2, gate_sigma[1] ** 2])
-        ok = self._ins_apply(H, y, np.diag([sh**2, sh**2, sv**2]), kind, t, R_gate)
-        if kind == "gnss_pos":
-            ok = self._gate_bookkeeping(t, ok, y, sh, sv)
+    def _ins_position_update(self, m: PositionMeasurement, force_reset: bool = False) -> bool:
+        ok, y = self._ins_apply(m)
+        if m.kind == "gnss_pos":
+            ok = self._gate_bookkeeping(m.t_s, ok, y, m.sigma_h_m, m.sigma_v_m, force_reset)
         if ok:
             self._last_innov = tuple(float(x) for x in y)
         else:
             self._n_rejected += 1
         return ok
 
-    def _gate_bookkeeping(self, t: float, ok: bool, y, sh: float, sv: float) -> bool:
-        """Persisting rejection is a real position step, not a glitch: reset position to GNSS."""
-        if ok:
-            self._reject_since = None
-            return True
-        if self._reject_since is None:
-            self._reject_since = t
-            return False
-        if t - self._reject_since < self.config.gate_reset_s:
-            return False
-        self._reject_since = None
-        if self.mode == "ins":
-            kf = self._kf
-            kf.P[0:3, :] = 0.0
-            kf.P[:, 0:3] = 0.0
-            kf.P[0:3, 0:3] = np.diag([sh**2, sh**2, sv**2])
-            kf.P[3:6, 3:6] += np.eye(3)
-            self._correct_ins(y, (0, 0, 0), (0, 0, 0), (0, 0, 0), (0, 0, 0))
-        return True
-
-    def _ins_velocity_update(self, t: float, vel, sigma: float) -> None:
-        self._ins_predict(max(t, self._kf_t))
-        H = np.zeros((3, 15))
-        H[:, 3:6] = np.eye(3)
-        y = np.asarray(vel, dtype=float) - self._ins_state_at(t)[1]
-        self._ins_apply(H, y, np.eye(3) * sigma**2, "gnss_vel", t)
-
     def _ins_attitude_update(self, ev: Attitude) -> None:
         c = self.config
-        self._ins_predict(max(ev.t_s, self._kf_t))
         fuse_yaw = c.fuse_attitude_yaw and self.ahrs_consistent
         # Tilt-only measurement: the autopilot's roll/pitch fix the gravity direction in the body frame
         # whatever its heading, so the measured attitude is built with the INS's own heading. (Built with
         # the autopilot's heading, a heading disagreement of d rotates and mixes the roll/pitch innovations
-        # through the small-angle extraction below: at d ~ 90 deg, as in the Erle PXF log, a roll error was
+        # through the small-angle extraction: at d ~ 90 deg, as in the Erle PXF log, a roll error was
         # read as a pitch error.)
         yaw_meas = ev.yaw_rad if fuse_yaw else self.ins.euler()[2]
         c_meas = dcm_from_quat(quat_from_euler(ev.roll_rad, ev.pitch_rad, yaw_meas))
-        E = c_meas @ self.ins.dcm().T  # = I + [psi x] for small psi
-        y = 0.5 * np.array([E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]])
-        H = np.zeros((3, 15))
-        H[:, 6:9] = np.eye(3)
         s_yaw = c.att_sigma_yaw_rad if fuse_yaw else 1e3  # 1e3 rad: no heading information
         s_tilt2 = c.att_sigma_tilt_rad**2
         if not self.ahrs_consistent:  # tilt error induced by the AHRS heading offset (see ahrs_check)
             a_rms = math.sqrt(self._al_acc2 / self._al_w) if self._al_w > 0 else 0.0
             s_tilt2 += (2.0 * math.sin(0.5 * abs(self.ahrs_heading_offset_rad)) * a_rms / 9.8) ** 2
-        R = np.diag([s_tilt2, s_tilt2, s_yaw**2])
-        self._ins_apply(H, y, R, "attitude", ev.t_s)
+        m = AttitudeMeasurement(ev.t_s, "attitude", c_meas=c_meas, var_rad2=(s_tilt2, s_tilt2, s_yaw**2),
+                                gate_chi2=c.gate_chi2)
+        ok, y = self._ins_apply(m)
+        if c.reset_after_rejection:
+            self._attitude_bookkeeping(ev.t_s, ok, y)
+
+    # ------------------------------------------------------------------ IMU and initialisation
+    def _on_imu(self, ev: ImuSample) -> None:
+        c = self.config
+        t = ev.t_s
+        self._imu_times.append(t)
+        prev_t = self._last_imu_t
+        self._last_imu_t = t
+        ac = self._att_c
+        if ac is not None and prev_t is not None and 0 < t - prev_t <= c.max_imu_step_s:
+            dt = t - prev_t
+            a = ev.accel_frd_mps2
+            self._sf_dv[0] += (ac[0] * a[0] + ac[1] * a[1] + ac[2] * a[2]) * dt
+            self._sf_dv[1] += (ac[3] * a[0] + ac[4] * a[1] + ac[5] * a[2]) * dt
+        ins = self.ins
+        if ins is None or self.mode != "ins" or self._reinit_pending is not None:
+            return
+        dt = t - ins.t_s
+        if dt > c.max_imu_step_s:
+            # a stall in the log (e.g. ArduPilot stops logging ~2 s at arming): do not integrate one
+            # sample across it; bring the KF up to the gap start and widen velocity/attitude uncertainty
+            self._ins_predict(ins.t_s)
+            q = self._kf.P
+            for i in range(3, 6):
+                q[i, i] += (c.kinematic_accel_sigma_mps2 * dt) ** 2
+            for i in range(6, 9):
+                q[i, i] += (c.gyro_noise_radps_rthz**2) * dt + 1e-4
+            speed = math.sqrt(ins.vn**2 + ins.ve**2 + ins.vd**2)
+            for i in range(3):
+                q[i, i] += (speed * dt + 0.5 * c.kinematic_accel_sigma_mps2 * dt * dt) ** 2
+            ins.coast(t - 0.02)
+            self._kf_t = ins.t_s
+        if ins.step(t, ev.accel_frd_mps2, ev.gyro_frd_radps) > 0:
+            if c.gnss_delay_s > 0:
+                hist = self._hist
+                hist.append([t, *self.frame.ned_tuple(ins.lat_deg, ins.lon_deg, ins.h_m), ins.vn, ins.ve, ins.vd])
+                while hist[0][0] < t - c.gnss_delay_s - 0.2:
+                    hist.popleft()
+            f = ins.f_ned
+            self._f_sum[0] += f[0]
+            self._f_sum[1] += f[1]
+            self._f_sum[2] += f[2]
+            self._f_n += 1
+
+    def _ins_init(self, t: float, z, vel, t_ins: float | None = None) -> None:
+        c = self.config
+        lat, lon, alt = self.frame.geodetic_tuple(*z)
+        v = (0.0, 0.0, 0.0)
+        if vel is not None:
+            v = (vel[0], vel[1], vel[2] if math.isfinite(vel[2]) else 0.0)
+        a = self._att
+        if t_ins is None:
+            t_ins = self._last_imu_t if self._last_imu_t is not None else t
+        self.ins = StrapdownIns(t_ins, lat, lon, alt, v, a.roll_rad, a.pitch_rad, a.yaw_rad)
+        self._hist.clear()
+        kf = KalmanFilter(dim_x=15, dim_z=3)
+        sh, sv = 3.0, 5.0
+        kf.P = np.diag(
+            [sh**2, sh**2, sv**2] + [1.0] * 3 + [c.init_sigma_att_rad**2] * 2 + [c.init_sigma_yaw_rad**2]
+            + [c.accel_bias_sigma_mps2**2] * 3 + [c.gyro_bias_sigma_radps**2] * 3
+        )
+        self._kf = kf
+        self._kf_t = t_ins
+        if not self.ahrs_consistent and math.isfinite(self.ahrs_heading_offset_rad):
+            self._align_yaw(t_ins)
+        self._f_sum = [0.0, 0.0, 0.0]
+        self._f_n = 0

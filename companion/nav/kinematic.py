@@ -10,6 +10,7 @@ import math
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
+from companion.nav.measurements import Measurement, PositionMeasurement, gate
 from companion.nav.outputs import MeasurementUpdate
 
 
@@ -40,29 +41,31 @@ class KinematicFilter:
         self._kin.predict(F=F, Q=Q)
         self._kin_t = t
 
-    def _kin_update(self, t: float, z, sh: float, sv: float, kind: str, record: bool, gate_sigma=None) -> bool:
-        self._kin_predict(max(t, self._kin_t))
+    def _kin_apply(self, m: Measurement, record: bool) -> tuple[bool, np.ndarray, float]:
+        """The one update of the constant-velocity KF (filterpy's algebra): predict to the measurement, gate,
+        record a MeasurementUpdate (if ``record``: the filter drives the output), update."""
+        self._kin_predict(max(m.t_s, self._kin_t))
         kf = self._kin
-        H = np.zeros((3, 6))
-        H[:, 0:3] = np.eye(3)
-        # the fix refers to t - delay
         x = kf.x.ravel()
-        y = np.asarray(z, dtype=float) - (x[0:3] - x[3:6] * self.config.gnss_delay_s)
-        R = np.diag([sh**2, sh**2, sv**2])
-        gh, gv = gate_sigma if gate_sigma is not None else (sh, sv)
-        S = H @ kf.P @ H.T + np.maximum(R, np.diag([gh**2, gh**2, gv**2]))
-        nis = float(y @ np.linalg.solve(S, y))
-        ok = nis <= self.config.gate_chi2
+        y, H, R = m.compute_kin(x, self.config.gnss_delay_s)
+        Rg = m.R_gate()
+        nis, ok = gate(y, H @ kf.P @ H.T + (R if Rg is None else np.maximum(R, Rg)), m.gate_chi2)
         if record:
-            self._out.append(
-                MeasurementUpdate(t, kind, "kinematic", tuple(float(v) for v in y), (sh, sh, sv), nis,
-                                  self.config.gate_chi2, ok)
-            )
-        if kind == "gnss_pos" and record:
-            ok = self._gate_bookkeeping(t, ok, y, sh, sv)
-            if ok and nis > self.config.gate_chi2:  # reset after persistent rejection
-                kf.x[0:3, 0] = np.asarray(z, dtype=float)
-                kf.P[0:3, 0:3] = R
+            self._out.append(MeasurementUpdate(m.t_s, m.kind, "kinematic", tuple(float(v) for v in y),
+                                               tuple(float(v) for v in np.sqrt(np.diag(R))), nis, m.gate_chi2, ok))
+        if ok:
+            kf.update((y + H @ x).reshape(-1, 1), R=R, H=H)
+        return ok, y, nis
+
+    def _kin_update(self, m: PositionMeasurement, record: bool) -> bool:
+        """A position measurement; a GNSS fix persistently rejected resets the position to it."""
+        kf = self._kin
+        ok, y, nis = self._kin_apply(m, record)
+        if m.kind == "gnss_pos" and record:
+            ok = self._gate_bookkeeping(m.t_s, ok, y, m.sigma_h_m, m.sigma_v_m)
+            if ok and nis > m.gate_chi2:  # reset after persistent rejection
+                kf.x[0:3, 0] = m.z()
+                kf.P[0:3, 0:3] = m.R()
                 kf.P[0:3, 3:6] = kf.P[3:6, 0:3] = 0.0
                 self._last_innov = tuple(float(v) for v in y)
                 return True
@@ -70,7 +73,6 @@ class KinematicFilter:
             if record:
                 self._n_rejected += 1
             return False
-        kf.update((y + H @ kf.x.ravel()).reshape(-1, 1), R=R, H=H)
         if record:
             self._last_innov = tuple(float(v) for v in y)
         return True

@@ -7,9 +7,36 @@ from __future__ import annotations
 import bisect
 import math
 
+import numpy as np
+
 
 class AhrsHeadingCheck:
     """Mixin: autopilot heading vs GNSS, and the coarse in-motion yaw alignment of the INS."""
+
+    def _monitors_init(self) -> None:
+        """State of both monitors (heading check and hold prior)."""
+        # autopilot heading check: specific force resolved with the autopilot attitude, integrated since
+        # the anchor fix; exponentially forgotten correlation sums
+        self._att_fused_t = -math.inf
+        self._att_c: tuple[float, ...] | None = None  # first two rows of the autopilot's C_b^n
+        self._sf_dv = [0.0, 0.0]
+        self._al_anchor: tuple[float, float, float] | None = None  # (t, vn, ve) of the anchor fix
+        self._al_c = 0j
+        self._al_ef = 0.0
+        self._al_eg = 0.0
+        self._al_acc2 = 0.0  # forgotten sum of squared horizontal GNSS accelerations, and its weight
+        self._al_w = 0.0
+        self.ahrs_heading_offset_rad = math.nan  # GNSS-observed heading minus autopilot heading
+        self.ahrs_consistent = True
+        self.yaw_alignments: list[tuple[float, float]] = []  # (t, applied INS heading rotation rad)
+        # motion prior for long blockages: accepted fixes, forgotten sums of squared displacement per lag
+        self._fix_hist_t: list[float] = []
+        self._fix_hist_p: list[tuple[float, float, float]] = []
+        self._last_fix_ned: tuple[float, float, float] | None = None
+        self._last_fix_var: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self._msd = np.zeros((self.config.hold_prior_max_lag_s + 1, 3))
+        self._msd_w = np.zeros(self.config.hold_prior_max_lag_s + 1)
+        self._msd_t: float | None = None
 
     def _ahrs_check(self, t: float, vel) -> None:
         """Autopilot heading vs GNSS (see ``NavigatorConfig.ahrs_check``); re-align the INS if it is off."""

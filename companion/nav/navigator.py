@@ -43,23 +43,20 @@ from collections import deque
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
+from companion.nav.aids import Aids
 from companion.nav.baro import BaroAid
 from companion.nav.config import NavigatorConfig
 from companion.nav.ins import StrapdownIns, dcm_from_quat, quat_from_euler
 from companion.nav.ins_filter import InsFilter
 from companion.nav.kinematic import KinematicFilter
 from companion.nav.knn_predictor import KnnPredictor
+from companion.nav.measurements import PositionMeasurement, VelocityMeasurement
+from companion.nav.modes import Modes
 from companion.nav.monitors import AhrsHeadingCheck, HoldPrior
-from companion.nav.outputs import (
-    FrameInfo,
-    FusedState,
-    MeasurementUpdate,
-    ModeChange,
-    PredictorPoint,
-)
-from companion.constants import receiver_sigma
+from companion.nav.outputs import FrameInfo, FusedState, PredictorPoint
 from companion.events import Attitude, AutopilotAltitude, Event, GnssFix, ImuSample, PositionFix
 from companion.nav.frame import LocalFrame
+from companion.nav.recovery import Recovery
 from companion.nav.reorder import ReorderBuffer
 from companion.pipeline.stage import Stage
 
@@ -70,7 +67,7 @@ __all__ = ["Navigator", "NavigatorConfig", "run_navigator"]
 _PRIO = {ImuSample: 0, Attitude: 1, GnssFix: 2}
 
 
-class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid, Stage):
+class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCheck, HoldPrior, BaroAid, Stage):
     """Streaming gap-filling stage: ``process(event) -> list[output]``, then ``finish()``."""
 
     def __init__(self, config: NavigatorConfig | None = None) -> None:
@@ -80,7 +77,8 @@ class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid
         self._reason_key = "init"
         self.predictor = KnnPredictor(c.knn)
         self.frame: LocalFrame | None = None
-        self._reorder = ReorderBuffer(c.reorder_window_s, _PRIO, default_priority=3)
+        self._reorder = ReorderBuffer(c.reorder_window_s, _PRIO, default_priority=3, outlier_s=c.future_outlier_s,
+                                      confirm_n=c.future_confirm_n)
         self._out: list[Event] = []
         self._t0: float | None = None  # first event time
         self._imu_times: deque[float] = deque()
@@ -93,7 +91,7 @@ class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid
         self._alt_off_t = -math.inf
         self._n_pred_fused = 0
         self._pred_anchor: float | None = None
-        self._reject_since: float | None = None
+        self._recovery_init()
         # INS filter
         self.ins: StrapdownIns | None = None
         self._kf: KalmanFilter | None = None
@@ -101,28 +99,7 @@ class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid
         self._f_sum = [0.0, 0.0, 0.0]
         self._f_n = 0
         self._hist: deque[list[float]] = deque()  # [t, n, e, d, vn, ve, vd] per IMU step, last delay + 0.2 s
-        # autopilot heading check: specific force resolved with the autopilot attitude, integrated since
-        # the anchor fix; exponentially forgotten correlation sums
-        self._att_fused_t = -math.inf
-        self._att_c: tuple[float, ...] | None = None  # first two rows of the autopilot's C_b^n
-        self._sf_dv = [0.0, 0.0]
-        self._al_anchor: tuple[float, float, float] | None = None  # (t, vn, ve) of the anchor fix
-        self._al_c = 0j
-        self._al_ef = 0.0
-        self._al_eg = 0.0
-        self._al_acc2 = 0.0  # forgotten sum of squared horizontal GNSS accelerations, and its weight
-        self._al_w = 0.0
-        self.ahrs_heading_offset_rad = math.nan  # GNSS-observed heading minus autopilot heading
-        self.ahrs_consistent = True
-        self.yaw_alignments: list[tuple[float, float]] = []  # (t, applied INS heading rotation rad)
-        # motion prior for long blockages: accepted fixes, forgotten sums of squared displacement per lag
-        self._fix_hist_t: list[float] = []
-        self._fix_hist_p: list[tuple[float, float, float]] = []
-        self._last_fix_ned: tuple[float, float, float] | None = None
-        self._last_fix_var: tuple[float, float, float] = (0.0, 0.0, 0.0)
-        self._msd = np.zeros((c.hold_prior_max_lag_s + 1, 3))
-        self._msd_w = np.zeros(c.hold_prior_max_lag_s + 1)
-        self._msd_t: float | None = None
+        self._monitors_init()
         # kinematic filter
         self._kin: KalmanFilter | None = None
         self._kin_t = 0.0
@@ -140,8 +117,13 @@ class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid
         return out
 
     def metadata(self) -> dict[str, str]:
-        """The mode the navigator ended in and why (INS, or the kinematic fallback)."""
-        return {k: str(v) for k, v in (("mode", self.mode), ("mode_reason", self.mode_reason)) if v}
+        """The mode the navigator ended in and why (INS, or the kinematic fallback); resets and dropped outliers."""
+        meta = {k: str(v) for k, v in (("mode", self.mode), ("mode_reason", self.mode_reason)) if v}
+        if self.resets:
+            meta["resets"] = ", ".join(f"{k}={n}" for k, n in sorted(self.resets.items()))
+        if self._reorder.dropped_future:
+            meta["dropped_future_events"] = str(self._reorder.dropped_future)
+        return meta
 
     def finish(self) -> list[Event]:
         """Flush the reorder buffer and emit the remaining outputs up to the last event time."""
@@ -158,6 +140,7 @@ class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid
         t = ev.t_s
         if self._t0 is None:
             self._t0 = t
+        self._check_stream_gap(t)
         if self._next_tick is not None:
             self._run_ticks(t, inclusive=False)
         if isinstance(ev, ImuSample):
@@ -166,6 +149,9 @@ class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid
         elif isinstance(ev, GnssFix):
             if ev.has_position and ev.alt_msl_m is not None and ev.instance == self.config.gnss_instance:
                 self._on_fix(ev)
+        elif self._reinit_pending is not None:
+            if isinstance(ev, Attitude):
+                self._att = ev  # aids wait for the re-initialisation
         elif isinstance(ev, PositionFix):
             self._on_position_fix(ev)
         elif isinstance(ev, AutopilotAltitude):
@@ -181,76 +167,8 @@ class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid
                 self._att_fused_t = ev.t_s
                 self._ins_attitude_update(ev)
 
-    def _set_mode(self, t: float, mode: str, reason: str, key: str) -> None:
-        """Switch mode; a ModeChange is emitted when the mode or the kind of reason changes."""
-        if mode != self.mode or key != self._reason_key:
-            self.mode, self.mode_reason, self._reason_key = mode, reason, key
-            self._out.append(ModeChange(t, mode, reason, self._imu_rate(t)))
-
-    def _imu_rate(self, t: float) -> float:
-        w = self.config.rate_window_s
-        while self._imu_times and self._imu_times[0] < t - w:
-            self._imu_times.popleft()
-        return len(self._imu_times) / w
-
     # ------------------------------------------------------------------ IMU
-    def _on_imu(self, ev: ImuSample) -> None:
-        c = self.config
-        t = ev.t_s
-        self._imu_times.append(t)
-        prev_t = self._last_imu_t
-        self._last_imu_t = t
-        ac = self._att_c
-        if ac is not None and prev_t is not None and 0 < t - prev_t <= c.max_imu_step_s:
-            dt = t - prev_t
-            a = ev.accel_frd_mps2
-            self._sf_dv[0] += (ac[0] * a[0] + ac[1] * a[1] + ac[2] * a[2]) * dt
-            self._sf_dv[1] += (ac[3] * a[0] + ac[4] * a[1] + ac[5] * a[2]) * dt
-        ins = self.ins
-        if ins is None or self.mode != "ins":
-            return
-        dt = t - ins.t_s
-        if dt > c.max_imu_step_s:
-            # a stall in the log (e.g. ArduPilot stops logging ~2 s at arming): do not integrate one
-            # sample across it; bring the KF up to the gap start and widen velocity/attitude uncertainty
-            self._ins_predict(ins.t_s)
-            q = self._kf.P
-            for i in range(3, 6):
-                q[i, i] += (c.kinematic_accel_sigma_mps2 * dt) ** 2
-            for i in range(6, 9):
-                q[i, i] += (c.gyro_noise_radps_rthz**2) * dt + 1e-4
-            speed = math.sqrt(ins.vn**2 + ins.ve**2 + ins.vd**2)
-            for i in range(3):
-                q[i, i] += (speed * dt + 0.5 * c.kinematic_accel_sigma_mps2 * dt * dt) ** 2
-            ins.coast(t - 0.02)
-            self._kf_t = ins.t_s
-        if ins.step(t, ev.accel_frd_mps2, ev.gyro_frd_radps) > 0:
-            if c.gnss_delay_s > 0:
-                hist = self._hist
-                hist.append([t, *self.frame.ned_tuple(ins.lat_deg, ins.lon_deg, ins.h_m), ins.vn, ins.ve, ins.vd])
-                while hist[0][0] < t - c.gnss_delay_s - 0.2:
-                    hist.popleft()
-            f = ins.f_ned
-            self._f_sum[0] += f[0]
-            self._f_sum[1] += f[1]
-            self._f_sum[2] += f[2]
-            self._f_n += 1
-
     # ------------------------------------------------------------------ GNSS
-    def _fix_sigmas(self, ev: GnssFix) -> tuple[float, float, float, float]:
-        """(update sigma h, v, gate sigma h, v). The gate always uses the receiver's accuracy."""
-        c = self.config
-        sh, sv = receiver_sigma(ev, c.uere_h_m, c.uere_v_m)
-        if sh is None:
-            sh = c.default_sigma_h_m
-        if sv is None:
-            sv = ev.hdop * c.uere_v_m if ev.hdop is not None and ev.hdop > 0 else c.default_sigma_v_m
-        gh, gv = max(sh, c.min_sigma_h_m), max(sv, c.min_sigma_h_m)
-        if c.gnss_sigma_model == "short_term":
-            scale = max(1.0, ev.hdop) if ev.hdop is not None and ev.hdop > 0 else 2.0
-            return c.short_term_sigma_h_m * scale, c.short_term_sigma_v_m * scale, gh, gv
-        return gh, gv, gh, gv
-
     def _on_fix(self, ev: GnssFix) -> None:
         c = self.config
         t = ev.t_s
@@ -263,126 +181,39 @@ class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid
         vel = None
         if ev.vel_n_mps is not None and ev.vel_e_mps is not None:
             vel = (ev.vel_n_mps, ev.vel_e_mps, ev.vel_d_mps if ev.vel_d_mps is not None else math.nan)
+        gnss_gap = self._note_fix(ev, vel)
+        if self._reinit_pending is not None:
+            self._reinit(t, z, vel)
+            self._fix_accepted(t, z, sh, sv, vel)
+            return
         self._update_mode(t, ev, z, vel)
         accepted = True
         if c.ahrs_check and vel is not None:
             self._ahrs_check(t, vel)
+        m = PositionMeasurement(t, "gnss_pos", z, sh, sv, (gh, gv), c.gate_chi2)
         if self.mode == "ins":
-            accepted = self._ins_position_update(t, z, sh, sv, "gnss_pos", (gh, gv))
+            accepted = self._ins_position_update(m, gnss_gap)
             if accepted and vel is not None and c.fuse_gnss_velocity and math.isfinite(vel[2]):
-                self._ins_velocity_update(t, vel, c.gnss_vel_sigma_mps)
+                self._ins_apply(VelocityMeasurement(t, "gnss_vel", vel, c.gnss_vel_sigma_mps, c.gate_chi2))
         if self._kin is None:
             self._kin_init(t, z, vel)
         else:
-            acc_k = self._kin_update(t, z, sh, sv, "gnss_pos", record=self.mode != "ins", gate_sigma=(gh, gv))
+            acc_k = self._kin_update(m, record=self.mode != "ins")
             if self.mode != "ins":
                 accepted = acc_k
         if accepted:
-            self._used.add("gnss")
-            self._last_fix_t = t
-            if c.hold_prior:
-                self._learn_motion(t, z, sh, sv)
-            self.predictor.add_fix(t, z, sh, sv, None if vel is None or not math.isfinite(vel[2]) else vel)
+            self._fix_accepted(t, z, sh, sv, vel)
         if self._next_tick is None:
             self._next_tick = math.floor(t / self._tick_dt) + 1
 
-    def _on_position_fix(self, ev: PositionFix) -> None:
-        """A non-GNSS horizontal position measurement (e.g. a gravity-matching fix) at its own epoch.
-
-        Fused with its own sigmas and its own 2-dof gate (no reset on persistent rejection: a bad matcher
-        must not drag the solution); the GNSS predictor, the motion prior and the fix age are untouched."""
-        if self.frame is None or self.mode == "init":
-            return  # no frame / no filter yet: GNSS starts the navigator
-        sn, se = float(ev.sigma_n_m), float(ev.sigma_e_m)
-        if not (math.isfinite(ev.lat_deg) and math.isfinite(ev.lon_deg) and sn > 0 and se > 0
-                and math.isfinite(sn) and math.isfinite(se)):
-            return
-        t = ev.t_s
-        z = np.array(self.frame.ned_tuple(ev.lat_deg, ev.lon_deg, self._ref[2])[:2])
-        R = np.diag([sn**2, se**2])
-        if self.mode == "ins":
-            self._ins_predict(max(t, self._kf_t))
-            H = np.zeros((2, 15))
-            H[:, 0:2] = np.eye(2)
-            y = z - self._ins_state_at(t, delay_s=0.0)[0][:2]
-            ok = self._ins_apply(H, y, R, "position_fix", t, gate_chi2=self.config.position_fix_gate_chi2)
-        else:
-            if self._kin is None:
-                return
-            self._kin_predict(max(t, self._kin_t))
-            kf = self._kin
-            H = np.zeros((2, 6))
-            H[:, 0:2] = np.eye(2)
-            y = z - kf.x.ravel()[0:2]
-            nis = float(y @ np.linalg.solve(H @ kf.P @ H.T + R, y))
-            ok = nis <= self.config.position_fix_gate_chi2
-            self._out.append(MeasurementUpdate(t, "position_fix", "kinematic", tuple(float(v) for v in y), (sn, se),
-                                               nis, self.config.position_fix_gate_chi2, ok))
-            if ok:
-                kf.update(z.reshape(-1, 1), R=R, H=H)
-        if ok:
-            self._used.add("position_fix")
-            self._last_innov = (float(y[0]), float(y[1]), math.nan)
-        else:
-            self._n_rejected += 1
-
-    def _update_mode(self, t: float, ev: GnssFix, z, vel) -> None:
-        c = self.config
-        if self._t0 is not None and t - self._t0 < c.rate_window_s and self.mode == "init":
-            return  # not enough stream seen to measure the IMU rate yet
-        rate = self._imu_rate(t)
-        imu_alive = self._last_imu_t is not None and t - self._last_imu_t < c.imu_timeout_s
-        if self.mode == "ins":
-            if not imu_alive:
-                self._set_mode(
-                    t, "kinematic", f"IMU{c.imu_index} stream stopped for > {c.imu_timeout_s:g} s", "imu_stopped"
-                )
-                self.ins = None
-            return
-        if not imu_alive or self._last_imu_t is None:
-            key = "no_imu" if self._last_imu_t is None else "imu_stopped"
-            reason = f"no IMU{c.imu_index} samples in the source: kinematic constant-velocity model"
-            if key == "imu_stopped":
-                reason = f"IMU{c.imu_index} stream stopped for > {c.imu_timeout_s:g} s: kinematic constant-velocity model"
-        elif rate < c.min_imu_rate_hz:
-            key = "low_rate"
-            reason = (
-                f"IMU{c.imu_index} rate {rate:.1f} Hz < {c.min_imu_rate_hz:g} Hz needed for strapdown "
-                "mechanisation: kinematic constant-velocity model"
-            )
-        elif self._att is None:
-            key = "no_attitude"
-            reason = "no attitude source to initialise the INS: kinematic constant-velocity model"
-        else:
-            self._ins_init(t, z, vel)
-            self._set_mode(t, "ins", f"strapdown INS on IMU{c.imu_index} at {rate:.0f} Hz + error-state KF", "ins")
-            return
-        self._set_mode(t, "kinematic", reason, key)
+    def _fix_accepted(self, t: float, z, sh: float, sv: float, vel) -> None:
+        self._used.add("gnss")
+        self._last_fix_t = t
+        if self.config.hold_prior:
+            self._learn_motion(t, z, sh, sv)
+        self.predictor.add_fix(t, z, sh, sv, None if vel is None or not math.isfinite(vel[2]) else vel)
 
     # ------------------------------------------------------------------ INS filter
-    def _ins_init(self, t: float, z, vel) -> None:
-        c = self.config
-        lat, lon, alt = self.frame.geodetic_tuple(*z)
-        v = (0.0, 0.0, 0.0)
-        if vel is not None:
-            v = (vel[0], vel[1], vel[2] if math.isfinite(vel[2]) else 0.0)
-        a = self._att
-        t_ins = self._last_imu_t if self._last_imu_t is not None else t
-        self.ins = StrapdownIns(t_ins, lat, lon, alt, v, a.roll_rad, a.pitch_rad, a.yaw_rad)
-        self._hist.clear()
-        kf = KalmanFilter(dim_x=15, dim_z=3)
-        sh, sv = 3.0, 5.0
-        kf.P = np.diag(
-            [sh**2, sh**2, sv**2] + [1.0] * 3 + [c.init_sigma_att_rad**2] * 2 + [c.init_sigma_yaw_rad**2]
-            + [c.accel_bias_sigma_mps2**2] * 3 + [c.gyro_bias_sigma_radps**2] * 3
-        )
-        self._kf = kf
-        self._kf_t = t_ins
-        if not self.ahrs_consistent and math.isfinite(self.ahrs_heading_offset_rad):
-            self._align_yaw(t_ins)
-        self._f_sum = [0.0, 0.0, 0.0]
-        self._f_n = 0
-
     # ------------------------------------------------------------------ 10 Hz ticks
     def _run_ticks(self, t: float, inclusive: bool) -> None:
         while True:
@@ -394,6 +225,8 @@ class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid
 
     def _tick(self, tg: float) -> None:
         c = self.config
+        if self._reinit_pending is not None:
+            return  # after a stream gap nothing is known until the next fix re-initialises
         # predictor point (Aziez 2021: 9 points between 1 Hz fixes, continuing through blockages)
         if self._last_fix_t is not None and tg - self._last_fix_t >= max(c.predictor_min_age_s, 1e-9):
             p = self.predictor.predict(tg)
@@ -407,11 +240,9 @@ class Navigator(InsFilter, KinematicFilter, AhrsHeadingCheck, HoldPrior, BaroAid
                     self._n_pred_fused = self._n_pred_fused + 1 if self._pred_anchor == self._last_fix_t else 1
                     self._pred_anchor = self._last_fix_t
                     infl = c.predictor_sigma_scale * (math.sqrt(self._n_pred_fused) if c.predictor_decorrelate else 1.0)
-                    sh, sv = p.sigma_h_m * infl, p.sigma_v_m * infl
-                    if self.mode == "ins":
-                        ok = self._ins_position_update(tg, p.ned_m, sh, sv, "predictor")
-                    else:
-                        ok = self._kin_update(tg, p.ned_m, sh, sv, "predictor", True)
+                    m = PositionMeasurement(tg, "predictor", p.ned_m, p.sigma_h_m * infl, p.sigma_v_m * infl,
+                                            gate_chi2=c.gate_chi2)
+                    ok = self._ins_position_update(m) if self.mode == "ins" else self._kin_update(m, True)
                     if ok:
                         self._used.add("predictor")
         if self.mode == "init":

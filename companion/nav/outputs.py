@@ -120,4 +120,22 @@ class FrameInfo(Event):
     topic: ClassVar[str] = "/estimation/frame"
 
 
-OUTPUT_TYPES: tuple[type[Event], ...] = (PredictorPoint, FusedState, MeasurementUpdate, ModeChange, FrameInfo)
+@dataclass(frozen=True, slots=True)
+class NavigatorReset(Event):
+    """The navigator reset (part of) its state to a measurement, as ArduPilot's EKF3 resets to GNSS after a GPS-glitch
+    timeout. ``kind``: "reinit" (whole filter from the next fix after a stream gap), "gnss_gap" (position/velocity
+    after a GNSS gap the fix did not pass the gate), "gnss_rejected" (persistent rejection of a good 3D fix),
+    "attitude_rejected" (persistent rejection of the autopilot attitude). ``jump_*`` is the state change (NaN if
+    there was no state before)."""
+
+    kind: str
+    reason: str
+    filter: str  # "ins" | "kinematic"
+    jump_pos_m: float
+    jump_vel_mps: float
+    topic: ClassVar[str] = "/estimation/reset"
+
+
+OUTPUT_TYPES: tuple[type[Event], ...] = (
+    PredictorPoint, FusedState, MeasurementUpdate, ModeChange, FrameInfo, NavigatorReset,
+)

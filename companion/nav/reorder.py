@@ -14,11 +14,19 @@ class ReorderBuffer:
 
     Equal times go by ``priority`` (event type -> rank, lower first; others ``default_priority``), then arrival
     order. ``horizon_s = 0`` passes events straight through. Events that arrive later than the horizon allows are
-    released at once, still in arrival order, and counted in ``late``.
+    released at once, still in arrival order, and counted in ``late``. With ``outlier_s``, an event stamped more than that
+ahead of the newest is held until ``confirm_n`` consecutive such events confirm the jump (a stream gap); an event
+back on the stream clock first means they were outliers: dropped and counted in ``dropped_future`` (so one
+future-stamped event cannot drag the horizon and flush everything).
     """
 
-    def __init__(self, horizon_s: float, priority: Mapping[type, int] | None = None, default_priority: int = 0) -> None:
+    def __init__(self, horizon_s: float, priority: Mapping[type, int] | None = None, default_priority: int = 0,
+                 outlier_s: float = float("inf"), confirm_n: int = 1) -> None:
         self.horizon_s = horizon_s
+        self.outlier_s = outlier_s
+        self.confirm_n = confirm_n
+        self._held: list[Event] = []  # events far ahead of the stream, waiting for confirmation
+        self.dropped_future = 0
         self._priority = dict(priority or {})
         self._default = default_priority
         self._heap: list[tuple[float, int, int, Event]] = []
@@ -28,6 +36,21 @@ class ReorderBuffer:
         self.late = 0
 
     def push(self, ev: Event) -> list[Event]:
+        if self.newest_s > float("-inf") and ev.t_s > self.newest_s + self.outlier_s:
+            if self._held and abs(ev.t_s - self._held[0].t_s) > self.outlier_s:
+                self.dropped_future += len(self._held)  # inconsistent outliers: start again from this one
+                self._held = []
+            self._held.append(ev)
+            if len(self._held) < self.confirm_n:
+                return []
+            held, self._held = self._held, []  # the stream really jumped
+            return [out for h in held for out in self._push(h)]
+        if self._held:  # back on the stream clock: the held events were outliers
+            self.dropped_future += len(self._held)
+            self._held = []
+        return self._push(ev)
+
+    def _push(self, ev: Event) -> list[Event]:
         if ev.t_s > self.newest_s:
             self.newest_s = ev.t_s
         if self.horizon_s <= 0:
@@ -45,6 +68,8 @@ class ReorderBuffer:
         return out
 
     def flush(self) -> list[Event]:
+        self.dropped_future += len(self._held)  # never confirmed
+        self._held = []
         out = [heapq.heappop(self._heap)[3] for _ in range(len(self._heap))]
         if out:
             self._released = max(self._released, out[-1].t_s)

@@ -22,12 +22,12 @@ from companion.gravity.matchers.base import Matcher, MatchResult
 from companion.gravity.placement import Placement
 from companion.gravity.stage import FixAcceptance, GravityMatchStage, gravity_replay_pipeline
 from companion.nav.navigator import NavigatorConfig
-from companion.nav.outputs import FrameInfo, FusedState, MeasurementUpdate, ModeChange, PredictorPoint
+from companion.nav.outputs import FrameInfo, FusedState, MeasurementUpdate, ModeChange, NavigatorReset, PredictorPoint
 from companion.pipeline.denial import DenialErrorStage, GnssDenial
 from companion.sim.gravimeter import SimulatedGravimeter
 
 #: What the navigator emits (kept in ChainResult.outputs).
-_NAV_OUTPUTS = (FusedState, FrameInfo, MeasurementUpdate, ModeChange, PredictorPoint)
+_NAV_OUTPUTS = (FusedState, FrameInfo, MeasurementUpdate, ModeChange, PredictorPoint, NavigatorReset)
 
 
 @dataclass

@@ -1,0 +1,53 @@
+"""The navigator's GNSS sigmas and the non-GNSS position fix (PositionFix, e.g. gravity matching). A mixin of
+companion.nav.navigator.Navigator (its state lives on the navigator)."""
+
+from __future__ import annotations
+
+import math
+
+from companion.constants import receiver_sigma
+from companion.events import GnssFix, PositionFix
+from companion.nav.measurements import HorizontalPositionMeasurement
+
+
+class Aids:
+    """Mixin: fix sigmas and the PositionFix aid."""
+
+    def _fix_sigmas(self, ev: GnssFix) -> tuple[float, float, float, float]:
+        """(update sigma h, v, gate sigma h, v). The gate always uses the receiver's accuracy."""
+        c = self.config
+        sh, sv = receiver_sigma(ev, c.uere_h_m, c.uere_v_m)
+        if sh is None:
+            sh = c.default_sigma_h_m
+        if sv is None:
+            sv = ev.hdop * c.uere_v_m if ev.hdop is not None and ev.hdop > 0 else c.default_sigma_v_m
+        gh, gv = max(sh, c.min_sigma_h_m), max(sv, c.min_sigma_h_m)
+        if c.gnss_sigma_model == "short_term":
+            scale = max(1.0, ev.hdop) if ev.hdop is not None and ev.hdop > 0 else 2.0
+            return c.short_term_sigma_h_m * scale, c.short_term_sigma_v_m * scale, gh, gv
+        return gh, gv, gh, gv
+
+    def _on_position_fix(self, ev: PositionFix) -> None:
+        """A non-GNSS horizontal position measurement (e.g. a gravity-matching fix) at its own epoch.
+
+        Fused with its own sigmas and its own 2-dof gate (no reset on persistent rejection: a bad matcher
+        must not drag the solution); the GNSS predictor, the motion prior and the fix age are untouched."""
+        if self.frame is None or self.mode == "init":
+            return  # no frame / no filter yet: GNSS starts the navigator
+        sn, se = float(ev.sigma_n_m), float(ev.sigma_e_m)
+        if not (math.isfinite(ev.lat_deg) and math.isfinite(ev.lon_deg) and sn > 0 and se > 0
+                and math.isfinite(sn) and math.isfinite(se)):
+            return
+        z = self.frame.ned_tuple(ev.lat_deg, ev.lon_deg, self._ref[2])[:2]
+        m = HorizontalPositionMeasurement(ev.t_s, "position_fix", z, sn, se, self.config.position_fix_gate_chi2)
+        if self.mode == "ins":
+            ok, y = self._ins_apply(m)
+        else:
+            if self._kin is None:
+                return
+            ok, y, _nis = self._kin_apply(m, record=True)
+        if ok:
+            self._used.add("position_fix")
+            self._last_innov = (float(y[0]), float(y[1]), math.nan)
+        else:
+            self._n_rejected += 1

@@ -1,0 +1,141 @@
+"""Bounded work for any timestamp, re-initialisation after a stream gap (both message orders at resume), and the
+reset after persistent rejection of a good fix."""
+
+import dataclasses
+import time
+
+import numpy as np
+import pytest
+
+from companion.events import GnssFix, ImuSample
+from companion.nav.navigator import Navigator, NavigatorConfig, run_navigator
+from companion.nav.outputs import FusedState, MeasurementUpdate, NavigatorReset
+from companion.sim.circle import SimNoise, simulate_flight
+
+RECEIVER = SimNoise(gnss_std_h_m=0.5, gnss_std_v_m=0.8)
+
+
+def _stream(events, config=None):
+    nav = Navigator(config)
+    out = []
+    for ev in events:
+        out.extend(nav.process(ev))
+    out.extend(nav.finish())
+    return nav, out
+
+
+def _fused(out):
+    return [o for o in out if isinstance(o, FusedState)]
+
+
+def _err_h(sim, o, shift_s=0.0):
+    n, e, _d = sim.frame.to_ned_m(o.lat_deg, o.lon_deg, o.alt_msl_m)
+    t = o.t_s - shift_s
+    tn = np.interp(t, sim.truth_t_s, sim.truth_pos_ned_m[:, 0])
+    te = np.interp(t, sim.truth_t_s, sim.truth_pos_ned_m[:, 1])
+    return float(np.hypot(n - tn, e - te))
+
+
+def test_one_event_far_ahead_is_dropped_and_costs_nothing():
+    sim = simulate_flight(20.0, np.random.default_rng(3), noise=RECEIVER)
+    base_nav, base = _stream(sim.events)
+    events = list(sim.events)
+    i = next(k for k, e in enumerate(events) if isinstance(e, GnssFix) and e.t_s > events[0].t_s + 10.0)
+    events.insert(i, dataclasses.replace(events[i], t_s=events[i].t_s + 1e6))
+    t_wall = time.perf_counter()
+    nav, out = _stream(events)
+    assert time.perf_counter() - t_wall < 60.0
+    assert nav._reorder.dropped_future == 1
+    assert not any(isinstance(o, NavigatorReset) for o in out)  # no false gap
+    assert [o.to_dict() for o in out] == [o.to_dict() for o in base]  # the outlier changed nothing
+    assert nav.metadata()["dropped_future_events"] == "1"
+
+
+@pytest.mark.parametrize("jump_s", [1e5, 1e6, 4e6])
+def test_stream_jumping_ahead_is_bounded_and_reinitialises(jump_s):
+    sim = simulate_flight(30.0, np.random.default_rng(4), noise=RECEIVER)
+    t_cut = sim.events[0].t_s + 15.0
+    events = [e if e.t_s < t_cut else dataclasses.replace(e, t_s=round(e.t_s + jump_s, 6)) for e in sim.events]
+    t_wall = time.perf_counter()
+    nav, out = _stream(events)
+    assert time.perf_counter() - t_wall < 60.0
+    fused = _fused(out)
+    assert len(fused) < 30 * 10 + 20  # one output per 0.1 s of data, none for the jump
+    resets = [o for o in out if isinstance(o, NavigatorReset)]
+    assert [r.kind for r in resets] == ["reinit"] and resets[0].filter == "ins"
+    assert nav._reorder.dropped_future == 0
+    after = [o for o in fused if o.t_s > t_cut + jump_s + 1.0]
+    assert after and max(_err_h(sim, o, jump_s) for o in after) < 3.0
+
+
+def _cut(events, t0, t1, first):
+    """All messages removed in [t0, t1); at resume `first` ("imu" or "gnss") arrives first."""
+    kept = [e for e in events if not t0 <= e.t_s < t1]
+    t_fix = min(e.t_s for e in kept if isinstance(e, GnssFix) and e.t_s >= t1)
+    if first == "gnss":  # IMU (and attitude) resume only 9 ms after the first fix
+        kept = [e for e in kept if not (t1 <= e.t_s < t_fix + 0.009 and not isinstance(e, GnssFix))]
+    else:  # IMU resumes 9 ms before the fix
+        kept = [e for e in kept if not (t1 <= e.t_s < t_fix - 0.009 and not isinstance(e, GnssFix))]
+    return kept, t_fix
+
+
+@pytest.mark.parametrize("gnss_rate_hz", [1.0, 5.0])
+@pytest.mark.parametrize("first", ["imu", "gnss"])
+def test_reinitialises_after_a_stream_gap_in_both_orders(first, gnss_rate_hz):
+    sim = simulate_flight(90.0, np.random.default_rng(6), noise=RECEIVER, gnss_rate_hz=gnss_rate_hz)
+    t0 = sim.events[0].t_s
+    events, t_fix = _cut(sim.events, t0 + 30.0, t0 + 79.0, first)
+    out = run_navigator(events)
+    resets = [o for o in out if isinstance(o, NavigatorReset)]
+    assert [r.kind for r in resets] == ["reinit"] and resets[0].t_s == t_fix and resets[0].filter == "ins"
+    fused = _fused(out)
+    assert not [o for o in fused if t0 + 30.5 < o.t_s < t_fix]  # nothing emitted across the gap
+    assert all(o.mode == "ins" for o in fused if o.t_s > t_fix)  # no kinematic detour at resume
+    # back within 3 m of truth after at most 2 fixes, and stays there
+    after = [o for o in fused if o.t_s >= t_fix + 2.0 / gnss_rate_hz]
+    assert max(_err_h(sim, o) for o in after) < 3.0
+    ups = [u for u in out if isinstance(u, MeasurementUpdate) and u.kind == "gnss_pos" and u.t_s > t_fix]
+    assert np.mean([u.accepted for u in ups]) > 0.95
+
+
+def test_persistent_rejection_of_a_good_fix_resets_position_and_velocity():
+    sim = simulate_flight(60.0, np.random.default_rng(7), noise=RECEIVER)
+    t0 = sim.events[0].t_s
+    # the receiver's solution steps by 40 m north at t0 + 30 s and stays there (a real step, good 3D fix)
+    events = [dataclasses.replace(e, lat_deg=e.lat_deg + 40.0 / 111_200.0)
+              if isinstance(e, GnssFix) and e.t_s >= t0 + 30.0 else e for e in sim.events]
+    cfg = NavigatorConfig()
+    out = run_navigator(events, cfg)
+    resets = [o for o in out if isinstance(o, NavigatorReset)]
+    assert [r.kind for r in resets] == ["gnss_rejected"]
+    r = resets[0]
+    assert t0 + 30.0 < r.t_s <= t0 + 30.0 + cfg.gate_reset_s + 0.3 and 35.0 < r.jump_pos_m < 45.0
+    ups = [u for u in out if isinstance(u, MeasurementUpdate) and u.kind == "gnss_pos" and u.t_s > r.t_s + 1.0]
+    assert np.mean([u.accepted for u in ups]) > 0.95
+    fused = [o for o in _fused(out) if o.t_s > r.t_s + 1.0]
+    n_off = [sim.frame.to_ned_m(o.lat_deg, o.lon_deg, o.alt_msl_m)[0]
+             - np.interp(o.t_s, sim.truth_t_s, sim.truth_pos_ned_m[:, 0]) for o in fused]
+    assert abs(np.median(n_off) - 40.0) < 3.0  # follows the receiver
+
+
+def test_rejected_fix_without_3d_fix_does_not_reset():
+    sim = simulate_flight(60.0, np.random.default_rng(7), noise=RECEIVER)
+    t0 = sim.events[0].t_s
+    events = [dataclasses.replace(e, lat_deg=e.lat_deg + 40.0 / 111_200.0, fix_type=2)
+              if isinstance(e, GnssFix) and t0 + 30.0 <= e.t_s < t0 + 45.0 else e for e in sim.events]
+    out = run_navigator(events)
+    assert not any(isinstance(o, NavigatorReset) and o.t_s < t0 + 45.0 for o in out)
+
+
+def test_persistent_attitude_rejection_resets_tilt():
+    sim = simulate_flight(40.0, np.random.default_rng(8), noise=RECEIVER)
+    t0 = sim.events[0].t_s
+    from companion.events import Attitude
+    events = [dataclasses.replace(e, roll_rad=e.roll_rad + 0.5) if isinstance(e, Attitude) and e.t_s >= t0 + 20.0
+              else e for e in sim.events]
+    out = run_navigator(events)
+    kinds = [o.kind for o in out if isinstance(o, NavigatorReset)]
+    assert "attitude_rejected" in kinds
+    n = NavigatorConfig()
+    assert n.att_reset_after_n_rejected > 1
+    assert all(isinstance(e, (ImuSample, GnssFix, Attitude)) for e in events)
