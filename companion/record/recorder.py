@@ -119,9 +119,8 @@ class Recorder:
     :param flush_interval_s: close a chunk when this much *message* time has passed since its first message.
     :param compression: "zstd" (default; ``zstandard`` is a dependency of ``mcap``), "lz4" or "none".
     :param fsync: also ``os.fsync`` whenever a chunk closes (survives power loss, costs SD-card writes).
-    :param null_style: how derived schemas say "may be null": "foxglove" (default, one ``type`` per field
-        plus ``"nullable": true``, which Foxglove can display) or "jsonschema" (standard ``[X, "null"]``
-        type lists, which Foxglove's reader rejects). See :mod:`companion.record.schemas`.
+    :param null_style: how derived schemas say "may be null": only "jsonschema" (standard ``[X, "null"]``
+        type lists), see :mod:`companion.record.schemas`.
     """
 
     def __init__(
@@ -132,7 +131,7 @@ class Recorder:
         flush_interval_s: float = 1.0,
         compression: str = "zstd",
         fsync: bool = False,
-        null_style: str = "foxglove",
+        null_style: str = "jsonschema",
     ):
         if compression not in _COMPRESSION:
             raise ValueError(f"compression must be one of {sorted(_COMPRESSION)}, not {compression!r}")
