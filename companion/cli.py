@@ -167,9 +167,12 @@ def cmd_replay(args) -> int:
         raise UsageError(f"the bundled sample {log} is missing; regenerate it with: python -m companion.sim.make_sample")
     out = Path(args.out) if args.out else _default_out(log.stem)
     _refuse_overwriting_inputs(out, [log] + ([Path(args.gravity_map)] if args.gravity_map else []))
+    from companion.record.clock import RecordClock, find_utc_offset
+
     source = FileSource(log)
     out.parent.mkdir(parents=True, exist_ok=True)
-    recorder = Recorder(out)
+    utc = find_utc_offset(log)  # a look-ahead, so that the record is in UTC from its first message on
+    recorder = Recorder(out, clock=RecordClock(*utc) if utc else RecordClock())
     try:
         pipeline = _build_pipeline(recorder, args)
     except UsageError:
@@ -237,7 +240,10 @@ def cmd_run(args) -> int:
 
         out = out / datetime.datetime.now(datetime.timezone.utc).strftime("companion-%Y%m%dT%H%M%SZ.mcap")
     out.parent.mkdir(parents=True, exist_ok=True)
-    rec_kw = dict(flush_interval_s=config.record.flush_interval_s, fsync=config.record.fsync)
+    from companion.record.clock import RecordClock
+
+    rec_kw = dict(flush_interval_s=config.record.flush_interval_s, fsync=config.record.fsync,
+                  clock=RecordClock(host_fallback=True))
     if config.record.segment_s > 0:
         recorder = RotatingRecorder(out, segment_s=config.record.segment_s, **rec_kw)
     else:

@@ -1,7 +1,9 @@
 """MCAP recorder: every pipeline step on its own JSON topic, positions as Foxglove LocationFix.
 
 Time: a message's log_time and publish_time are the vehicle time ``t_s`` of what it records, in integer
-nanoseconds (``round(t_s * 1e9)``); wall-clock time never enters the record. Payloads are
+nanoseconds (``round(t_s * 1e9)``), plus the UTC offset once a :class:`~companion.record.clock.RecordClock`
+knows it (UTC, Unix epoch ns: see that module); the payloads keep ``t_s``. A ``clock`` metadata record
+says which clock the log times are on. Payloads are
 ``json.dumps(d, separators=(",", ":"), allow_nan=False)`` of the dataclass's ``to_dict()``, so the same
 input gives byte-identical payloads (and, with the same software versions, a byte-identical file).
 
@@ -39,6 +41,7 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 import companion
 from companion.events import Event
+from companion.record.clock import RecordClock
 from companion.record.inspect import RecordError
 from companion.record.schemas import (
     COV_DIAGONAL_KNOWN,
@@ -119,6 +122,7 @@ class Recorder:
     :param flush_interval_s: close a chunk when this much *message* time has passed since its first message.
     :param compression: "zstd" (default; ``zstandard`` is a dependency of ``mcap``), "lz4" or "none".
     :param fsync: also ``os.fsync`` whenever a chunk closes (survives power loss, costs SD-card writes).
+    :param clock: log times in UTC once known (:class:`~companion.record.clock.RecordClock`); None: boot time.
     :param null_style: how derived schemas say "may be null": only "jsonschema" (standard ``[X, "null"]``
         type lists), see :mod:`companion.record.schemas`.
     """
@@ -132,6 +136,7 @@ class Recorder:
         compression: str = "zstd",
         fsync: bool = False,
         null_style: str = "jsonschema",
+        clock: RecordClock | None = None,
     ):
         if compression not in _COMPRESSION:
             raise ValueError(f"compression must be one of {sorted(_COMPRESSION)}, not {compression!r}")
@@ -151,6 +156,7 @@ class Recorder:
         self._interval_ns = max(1, round(flush_interval_s * 1e9))
         self._fsync = fsync
         self._null_style = null_style
+        self.clock = clock
         self._chunk_bytes = 0
         self._chunk_t0: int | None = None  # log time of the open chunk's first message
         self._busy = False
@@ -180,6 +186,8 @@ class Recorder:
             entry = self._register_dataclass(type(item), topic)
         channel_id, fast, to_json = entry
         t_ns = _time_ns(item.t_s)
+        if self.clock is not None:
+            self.clock.observe(item)
         if fast is not None:
             # Field values straight to json: same bytes as to_dict() (tuples -> arrays, IntEnum -> int),
             # without a per-field Python loop. NaN/inf or a value json cannot take -> the exact to_dict() path.
@@ -293,7 +301,10 @@ class Recorder:
         if self._busy:
             self._close_requested = True
             return
-        self._closed = True
+        try:
+            self.add_metadata("clock", self.clock.metadata() if self.clock is not None else RecordClock().metadata())
+        finally:
+            self._closed = True
         try:
             self._writer.finish()
             if self._fsync:
@@ -320,6 +331,8 @@ class Recorder:
         try:
             seq = self._seq[channel_id]
             self._seq[channel_id] = seq + 1
+            if self.clock is not None:
+                t_ns = self.clock.log_ns(t_ns)
             self._writer.add_message(channel_id, t_ns, data, t_ns, seq & 0xFFFFFFFF)
             self._chunk_bytes += _MESSAGE_OVERHEAD + len(data)
             t0 = self._chunk_t0
