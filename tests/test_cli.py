@@ -171,13 +171,18 @@ def test_live_udp_ingest_records_events(tmp_path):
         text=True,
     )
     frames = _tlog_frames(require(LOG_TLOG), 4000)
-    time.sleep(2.0)
+    head = []  # wait until the link is open (a loaded machine takes seconds to start Python)
+    while not any("link opened" in line for line in head):
+        line = proc.stderr.readline()
+        assert line, f"companion run ended before opening the link: {''.join(head)}"
+        head.append(line)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
         for i, f in enumerate(frames):
             tx.sendto(f, ("127.0.0.1", port))
             if i % 200 == 0:
                 time.sleep(0.02)
     stdout, stderr = proc.communicate(timeout=60)
+    stderr = "".join(head) + stderr
     assert proc.returncode == 0, stderr
     assert "Traceback" not in stderr
     s = summarize(out)
