@@ -242,8 +242,17 @@ def cmd_run(args) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     from companion.record.clock import RecordClock
 
+    live_view = None
+    if args.foxglove:
+        from companion.record.live_view import LiveView, parse_endpoint
+
+        try:
+            live_view = LiveView(*parse_endpoint(args.foxglove))
+        except ValueError as err:
+            raise UsageError(str(err)) from None
+        print(f"foxglove     ws://{live_view.host}:{live_view.port} (Foxglove: Open connection)", file=sys.stderr, flush=True)
     rec_kw = dict(flush_interval_s=config.record.flush_interval_s, fsync=config.record.fsync,
-                  clock=RecordClock(host_fallback=True))
+                  clock=RecordClock(host_fallback=True), live_view=live_view)
     if config.record.segment_s > 0:
         recorder = RotatingRecorder(out, segment_s=config.record.segment_s, **rec_kw)
     else:
@@ -252,6 +261,8 @@ def cmd_run(args) -> int:
         runtime = Runtime(config, recorder)
     except ValueError as err:  # the gravity map (MapFormatError is a ValueError)
         recorder.close()
+        if live_view is not None:
+            live_view.close()
         out.unlink(missing_ok=True)
         raise UsageError(f"gravity.map {config.gravity.map}: {err}") from None
     meta = {"command": "run", "companion_version": __version__, **config.as_flat_dict()}
@@ -263,6 +274,8 @@ def cmd_run(args) -> int:
         runtime.finalize_info()
         recorder.add_metadata("runtime", runtime.metadata())
         _finish_record(recorder, runtime, runtime.pipeline, meta, stopped_by)
+        if live_view is not None:
+            live_view.close()
     _print_summary(runtime, runtime.pipeline, recorder.path, stopped_by, wall_time_s() - t0)
     for path in getattr(recorder, "paths", [])[:-1]:
         print(f"record       {path} (earlier segment)")
@@ -330,6 +343,9 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--gps-id", type=int, default=None, help="GPS instance fed by GPS_INPUT: 0 (GPS1_TYPE=14) or 1 (GPS2_TYPE=14)")
     n.add_argument("--signing-key-file", default=None, help="MAVLink2 signing key (32 bytes raw or 64 hex characters)")
     n.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help="override any setting, e.g. inject.activate=gnss_loss")
+    n.add_argument("--foxglove", metavar="[HOST:]PORT", default=None,
+                   help="serve the record's topics live over the Foxglove WebSocket protocol (default: off; "
+                        "HOST defaults to 127.0.0.1, loopback only; PORT 0 picks a free port)")
     n.add_argument("--duration", type=_positive_float, default=None, help="stop after this many seconds")
     n.add_argument("--gravity-map", default=None, metavar="FILE",
                    help="gravity-aided: match NAMED_VALUE_FLOAT 'GRAV' readings (mGal) against this grid ([gravity] settings)")

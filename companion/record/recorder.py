@@ -123,6 +123,8 @@ class Recorder:
     :param compression: "zstd" (default; ``zstandard`` is a dependency of ``mcap``), "lz4" or "none".
     :param fsync: also ``os.fsync`` whenever a chunk closes (survives power loss, costs SD-card writes).
     :param clock: log times in UTC once known (:class:`~companion.record.clock.RecordClock`); None: boot time.
+    :param live_view: also publish every message (same topic, schema, bytes and log time) to this
+        :class:`~companion.record.live_view.LiveView` (Foxglove WebSocket server).
     :param null_style: how derived schemas say "may be null": only "jsonschema" (standard ``[X, "null"]``
         type lists), see :mod:`companion.record.schemas`.
     """
@@ -137,6 +139,7 @@ class Recorder:
         fsync: bool = False,
         null_style: str = "jsonschema",
         clock: RecordClock | None = None,
+        live_view: Any = None,
     ):
         if compression not in _COMPRESSION:
             raise ValueError(f"compression must be one of {sorted(_COMPRESSION)}, not {compression!r}")
@@ -157,6 +160,7 @@ class Recorder:
         self._fsync = fsync
         self._null_style = null_style
         self.clock = clock
+        self.live_view = live_view  # companion.record.live_view.LiveView: gets every message written
         self._chunk_bytes = 0
         self._chunk_t0: int | None = None  # log time of the open chunk's first message
         self._busy = False
@@ -334,6 +338,9 @@ class Recorder:
             if self.clock is not None:
                 t_ns = self.clock.log_ns(t_ns)
             self._writer.add_message(channel_id, t_ns, data, t_ns, seq & 0xFFFFFFFF)
+            if self.live_view is not None:
+                name = self._channel_schema[channel_id]
+                self.live_view.publish(self._channel_topic[channel_id], name, self._schemas[name][1], t_ns, data)
             self._chunk_bytes += _MESSAGE_OVERHEAD + len(data)
             t0 = self._chunk_t0
             if t0 is None:
