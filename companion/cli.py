@@ -108,7 +108,8 @@ def _print_summary(source, pipeline, out: Path, stopped_by: str | None, elapsed_
         for k, v in _stage_metadata(stage).items():
             print(f"{type(stage).__name__.lower():<12} {k}: {v}")
     for w in source.info.warnings:
-        print(f"warning: {w}")
+        # other systems on the link (a ground station's heartbeats) are normal traffic, not a problem
+        print(f"{'ignored' if 'other system' in w and w.startswith('dropped') else 'warning:'} {w}")
     n = sum(pipeline.stats.counts.values())
     rate = f"{n / elapsed_s:,.0f} events/s" if elapsed_s > 0 else "-"
     print(f"processed    {n} events in {elapsed_s:.2f} s wall time ({rate})")
@@ -250,7 +251,6 @@ def cmd_run(args) -> int:
             live_view = LiveView(*parse_endpoint(args.foxglove))
         except ValueError as err:
             raise UsageError(str(err)) from None
-        print(f"foxglove     ws://{live_view.host}:{live_view.port} (Foxglove: Open connection)", file=sys.stderr, flush=True)
     rec_kw = dict(flush_interval_s=config.record.flush_interval_s, fsync=config.record.fsync,
                   clock=RecordClock(host_fallback=True), live_view=live_view)
     if config.record.segment_s > 0:
@@ -269,7 +269,9 @@ def cmd_run(args) -> int:
     t0 = wall_time_s()
     stopped_by = None
     try:
-        stopped_by = asyncio.run(runtime.run(config.duration_s or None))
+        from companion.runtime_status import run_with_status
+
+        stopped_by = asyncio.run(run_with_status(runtime, config.duration_s or None, args.status_every))
     finally:
         runtime.finalize_info()
         recorder.add_metadata("runtime", runtime.metadata())
@@ -302,9 +304,22 @@ def cmd_inspect(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="companion", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="companion", description=__doc__.splitlines()[0].replace("``", ""), epilog=_EPILOG,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"companion {__version__}")
+    _add_verbosity(p, 0)
+    common = argparse.ArgumentParser(add_help=False)
+    _add_verbosity(common, argparse.SUPPRESS)
     sub = p.add_subparsers(dest="command", required=True)
+    _orig_add_parser = sub.add_parser
+
+    def add_parser(name, **kw):
+        kw.setdefault("parents", [common])
+        kw.setdefault("epilog", _EPILOG)
+        kw.setdefault("formatter_class", argparse.RawDescriptionHelpFormatter)
+        return _orig_add_parser(name, **kw)
+
+    sub.add_parser = add_parser
 
     r = sub.add_parser("replay", help="replay a dataflash .bin or telemetry .tlog log into an MCAP record")
     r.add_argument("log", nargs="?", help="log file (default: the bundled sample logs/sample_flight.tlog)")
@@ -318,7 +333,6 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FACTOR",
         help="pace the replay at the vehicle's own rate (optionally FACTOR times faster); default: as fast as possible",
     )
-    r.add_argument("--quiet", action="store_true", help="no progress bar")
     g = r.add_argument_group("gravity-aided replay (GNSS denied, simulated gravimeter, GPS_INPUT in shadow mode)")
     g.add_argument("--gravity-map", metavar="FILE", help="gravity anomaly grid (netCDF, mGal)")
     g.add_argument("--deny-gnss-after", type=float, metavar="SECONDS",
@@ -346,6 +360,8 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--foxglove", metavar="[HOST:]PORT", default=None,
                    help="serve the record's topics live over the Foxglove WebSocket protocol (default: off; "
                         "HOST defaults to 127.0.0.1, loopback only; PORT 0 picks a free port)")
+    n.add_argument("--status-every", type=float, default=30.0, metavar="SECONDS",
+                   help="log a one-line status (rates, navigator mode, last fix age) at INFO this often (default 30; 0: never)")
     n.add_argument("--duration", type=_positive_float, default=None, help="stop after this many seconds")
     n.add_argument("--gravity-map", default=None, metavar="FILE",
                    help="gravity-aided: match NAMED_VALUE_FLOAT 'GRAV' readings (mGal) against this grid ([gravity] settings)")
@@ -398,9 +414,22 @@ def build_parser() -> argparse.ArgumentParser:
     v.set_defaults(func=cmd_sim)
 
     i = sub.add_parser("inspect", help="summarise an MCAP record: topics, counts, time span")
-    i.add_argument("file")
+    i.add_argument("file", help="an .mcap record written by replay or run (a killed run's file is read up to where it ends)")
     i.set_defaults(func=cmd_inspect)
     return p
+
+
+_EPILOG = """exit codes:
+  0    done (also: stopped by SIGTERM or --duration)
+  2    unusable input or settings: nothing useful was done
+  3    the log was truncated or corrupt: everything readable was replayed and recorded
+  130  interrupted (Ctrl-C / SIGINT); the record is finalised with what was read"""
+
+
+def _add_verbosity(parser: argparse.ArgumentParser, default) -> None:
+    parser.add_argument("-v", "--verbose", action="count", default=default, help="more log output (DEBUG)")
+    parser.add_argument("-q", "--quiet", action="count", default=default,
+                        help="less output: no progress bar, only warnings (-qq: only errors)")
 
 
 def _positive_float(text: str) -> float:
@@ -418,6 +447,9 @@ def main(argv: list[str] | None = None) -> int:
     from companion.sources import SourceError
 
     args = build_parser().parse_args(argv)
+    from companion.logsetup import configure
+
+    configure(getattr(args, "verbose", 0) or 0, getattr(args, "quiet", 0) or 0)
     try:
         return args.func(args)
     except (SourceError, UsageError, RecordError) as err:

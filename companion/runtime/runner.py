@@ -14,6 +14,7 @@ it (``Batch.recv_perf_s``) to the return of the socket write is kept per trigger
 from __future__ import annotations
 
 import asyncio
+import logging
 import signal
 import sys
 import time
@@ -27,6 +28,8 @@ from companion.notify import Notifier
 from companion.pipeline.core import Pipeline, build_pipeline
 from companion.mavlink.link import Batch, LinkStatus, MavlinkLink
 from companion.sources.base import SourceInfo
+
+_logger = logging.getLogger(__name__)
 
 _STOP = object()
 LATENCY_KEEP = 1 << 20  # latency samples kept per trigger (8 MiB); beyond, thinned by half
@@ -65,7 +68,7 @@ class Runtime:
         self.stopped_by: str | None = None
         self._rx: tuple[float, str] | None = None
         self._last_batch_wall = time.monotonic()
-        self._log = log if log is not None else (lambda text: print(text, file=sys.stderr, flush=True))
+        self._log = log
 
     # -- callbacks ----------------------------------------------------------------------------
     def _on_sent(self, rec: GpsInputRecord) -> None:
@@ -80,7 +83,11 @@ class Runtime:
         self.link_log.append(st)
         if self.sink is not None:
             self.sink.write(st)
-        self._log(f"companion: link {st.state}: {st.detail}")
+        if self._log is not None:
+            self._log(f"link {st.state}: {st.detail}")
+        else:
+            level = logging.WARNING if st.state in ("lost", "open_failed", "rate_low") else logging.INFO
+            _logger.log(level, "link %s: %s", st.state, st.detail)
         if st.state in ("autopilot", "lost", "reboot", "opened"):
             self.notifier.status(f"link {st.state}: {st.detail}")
 

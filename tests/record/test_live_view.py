@@ -40,7 +40,7 @@ def _wait_for_port(proc, deadline_s: float) -> tuple[int, list[str]]:
         if not line:
             break
         seen.append(line)
-        if line.startswith("foxglove ") and "ws://" in line:
+        if "Foxglove live view on ws://" in line:
             return int(line.split("ws://", 1)[1].split()[0].rsplit(":", 1)[1]), seen
     raise AssertionError("no Foxglove server line from companion run: " + "".join(seen))
 
