@@ -2,34 +2,52 @@
 # One entry point for a fresh machine (Debian, Python >= 3.11): sets up .venv once, then runs the job.
 #   ./dev.sh replay [ARGS]   replay a log (default: the bundled sample) into out/*.mcap and summarise it
 #   ./dev.sh test [ARGS]     run the whole test suite (what .ci/run calls)
-#   ./dev.sh setup           only create/refresh the environment
-# Idempotent: the venv is reused; dependencies are reinstalled only when pyproject.toml changes.
+#   ./dev.sh setup           only create/refresh the production environment
+# Two venvs: .venv is the production install (`pip install .`, no test extras, no editable link);
+# .venv-test is the developer's (`pip install -e .[test]`: pytest, jsonschema, websockets, dask).
+# Idempotent: a venv is reused; dependencies are reinstalled only when pyproject.toml (or, for .venv,
+# the source) changes.
 set -euo pipefail
 cd "$(dirname "$0")"
 
 PY=${PYTHON:-python3}
-VENV=.venv
-STAMP=$VENV/.installed-$(sha256sum pyproject.toml | cut -c1-16)
 
-setup() {
-  if [ ! -x "$VENV/bin/python" ]; then
-    if ! "$PY" -m venv "$VENV" 2>/dev/null; then
+make_venv() {  # make_venv DIR
+  if [ ! -x "$1/bin/python" ]; then
+    if ! "$PY" -m venv "$1" 2>/dev/null; then
       echo "python venv module missing; installing python3-venv (needs root)" >&2
       apt-get update -qq && apt-get install -y -qq python3-venv >/dev/null
-      rm -rf "$VENV"; "$PY" -m venv "$VENV"
+      rm -rf "$1"; "$PY" -m venv "$1"
     fi
   fi
-  if [ ! -f "$STAMP" ]; then
-    "$VENV/bin/python" -m pip install -q --upgrade pip
-    "$VENV/bin/python" -m pip install -q -e '.[test]'
-    rm -f "$VENV"/.installed-*; touch "$STAMP"
+}
+
+setup() {  # production: a non-editable install of the package, without test extras
+  local venv=.venv
+  local stamp=$venv/.installed-$( (cat pyproject.toml; find companion -type f \( -name '*.py' -o -name '*.tlog' \) | sort | xargs cat) | sha256sum | cut -c1-16)
+  make_venv "$venv"
+  if [ ! -f "$stamp" ]; then
+    "$venv/bin/python" -m pip install -q --upgrade pip
+    "$venv/bin/python" -m pip install -q .
+    rm -f "$venv"/.installed-*; touch "$stamp"
+  fi
+}
+
+setup_test() {  # development: editable, with the test extras
+  local venv=.venv-test
+  local stamp=$venv/.installed-$(sha256sum pyproject.toml | cut -c1-16)
+  make_venv "$venv"
+  if [ ! -f "$stamp" ]; then
+    "$venv/bin/python" -m pip install -q --upgrade pip
+    "$venv/bin/python" -m pip install -q -e '.[test]'
+    rm -f "$venv"/.installed-*; touch "$stamp"
   fi
 }
 
 cmd=${1:-replay}; shift || true
 case "$cmd" in
   setup) setup ;;
-  replay) setup; exec "$VENV/bin/companion" replay "$@" ;;
-  test) setup; exec "$VENV/bin/python" -m pytest "$@" ;;
+  replay) setup; exec .venv/bin/companion replay "$@" ;;
+  test) setup_test; exec .venv-test/bin/python -m pytest "$@" ;;
   *) echo "usage: $0 {replay|test|setup} [args]" >&2; exit 2 ;;
 esac

@@ -8,6 +8,7 @@ level down and makes image links relative to the repository root. It measures no
 
 from __future__ import annotations
 
+import argparse
 import re
 from pathlib import Path
 
@@ -18,7 +19,11 @@ ORDER = ["ingest.md", "gap_filling.md", "live.md", "gravity_summary.md", "gravit
          "gravity_live_ship.md"]
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(prog="python -m replay.collect_benchmarks", description=__doc__.split("\n\n")[0],
+                                 epilog="It writes BENCHMARKS.md in the repository root (replacing it).")
+    ap.add_argument("--check", action="store_true", help="only say whether BENCHMARKS.md is up to date (exit 1 if not)")
+    args = ap.parse_args(argv)
     files = [RESULTS / n for n in ORDER if (RESULTS / n).exists()]
     files += sorted(p for p in RESULTS.glob("*.md") if p not in files)
     parts = [
@@ -39,7 +44,12 @@ def main() -> None:
         parts.append("## Plots\n")
         parts += [f"- [{p.stem}](replay/results/{p.name})" for p in pngs]
         parts.append("")
-    (ROOT / "BENCHMARKS.md").write_text("\n".join(parts))
+    text = "\n".join(parts)
+    if args.check:
+        current = (ROOT / "BENCHMARKS.md").read_text() if (ROOT / "BENCHMARKS.md").exists() else ""
+        print("BENCHMARKS.md is " + ("up to date" if current == text else "out of date"))
+        raise SystemExit(0 if current == text else 1)
+    (ROOT / "BENCHMARKS.md").write_text(text)
     print(f"BENCHMARKS.md: {len(files)} sections from {', '.join(p.name for p in files)}")
 
 

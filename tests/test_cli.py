@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from companion.record import iter_payloads, summarize
-from tests.conftest import free_port, LOG171, LOG_AC402, LOG_ERLE, LOG_TLOG, REAL_LOGS, SAMPLE_LOG, require
+from tests.conftest import REPO, free_port, LOG171, LOG_AC402, LOG_ERLE, LOG_TLOG, REAL_LOGS, SAMPLE_LOG, require
 
 COMPANION = [sys.executable, "-m", "companion.cli"]
 
@@ -171,13 +171,18 @@ def test_live_udp_ingest_records_events(tmp_path):
         text=True,
     )
     frames = _tlog_frames(require(LOG_TLOG), 4000)
-    time.sleep(2.0)
+    head = []  # wait until the link is open (a loaded machine takes seconds to start Python)
+    while not any("link opened" in line for line in head):
+        line = proc.stderr.readline()
+        assert line, f"companion run ended before opening the link: {''.join(head)}"
+        head.append(line)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
         for i, f in enumerate(frames):
             tx.sendto(f, ("127.0.0.1", port))
             if i % 200 == 0:
                 time.sleep(0.02)
     stdout, stderr = proc.communicate(timeout=60)
+    stderr = "".join(head) + stderr
     assert proc.returncode == 0, stderr
     assert "Traceback" not in stderr
     s = summarize(out)
@@ -205,3 +210,42 @@ def test_realtime_pacing_follows_vehicle_time(tmp_path):
     wall = time.perf_counter() - t0
     assert res.returncode == 0
     assert wall >= 112.0 / 40  # 112 s of vehicle time at 40x cannot finish sooner
+
+
+def test_terminal_labels_and_help(capsys):
+    from companion.cli import _short_label, build_parser
+
+    name = "replay ac33dev_pixhawk1_quad_2015-11-21_dronekit-la-testdata_log171.bin"
+    short = _short_label(name, 22)
+    assert len(short) == 22 and short.startswith("replay ac") and short.endswith(".bin")
+    assert _short_label("navigator", 12) == "navigator"
+    text = build_parser().format_help()
+    assert "``" not in text and "exit codes" in text and "130" in text
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["inspect", "--help"])
+    assert "an .mcap record" in capsys.readouterr().out
+
+
+def test_collect_benchmarks_help_writes_nothing():
+    bench = REPO / "BENCHMARKS.md"
+    before = bench.read_bytes() if bench.exists() else None
+    proc = subprocess.run([sys.executable, "-m", "replay.collect_benchmarks", "--help"], cwd=REPO,
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0 and "usage:" in proc.stdout
+    assert (bench.read_bytes() if bench.exists() else None) == before
+
+
+def test_logging_under_journald_has_priorities_and_no_timestamps(monkeypatch):
+    import io
+    import logging
+
+    from companion.logsetup import configure
+
+    monkeypatch.setenv("JOURNAL_STREAM", "8:1234")
+    buf = io.StringIO()
+    configure(0, 0, stream=buf)
+    logging.getLogger("companion.runtime").warning("link lost: nothing for 3 s")
+    logging.getLogger("companion.runtime").debug("not shown at the default level")
+    monkeypatch.delenv("JOURNAL_STREAM")
+    configure(0, 0)
+    assert buf.getvalue() == "<4>WARNING companion.runtime: link lost: nothing for 3 s\n"

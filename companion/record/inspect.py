@@ -349,6 +349,18 @@ def iter_payloads(path: str | os.PathLike, topic: str | None = None) -> Iterator
                 return
 
 
+_YEAR_2001_NS = 978307200 * 10**9  # log times past this are Unix epoch times, not boot times
+
+
+def _fmt_utc(ns: int | None) -> str:
+    if ns is None:
+        return "-"
+    import datetime
+
+    t = datetime.datetime.fromtimestamp(ns // 10**9, tz=datetime.timezone.utc)
+    return t.strftime("%Y-%m-%dT%H:%M:%S") + f".{ns % 10**9 // 10**6:03d}Z"
+
+
 def _fmt_t(ns: int | None) -> str:
     return "-" if ns is None else f"{ns / 1e9:.3f}"
 
@@ -373,20 +385,25 @@ def format_summary(summary: Summary, *, max_value_chars: int = 160) -> str:
     if s.library:
         lines.append(f"writer    {s.library}")
     chunks = f", {s.chunk_count} chunks" if s.chunk_count >= 0 else ""
-    lines.append(
-        f"span      {_fmt_t(s.start_ns)} s .. {_fmt_t(s.end_ns)} s vehicle time ({s.span_s:.3f} s), "
-        f"{s.message_count} messages on {len(s.topics)} topics{chunks}"
-    )
+    clock = s.metadata_dict("clock") or {}
+    utc = clock.get("log_time", "").startswith(("UTC", "host UTC")) or (s.start_ns or 0) > _YEAR_2001_NS
+    base = s.start_ns if utc and s.start_ns is not None else 0
+    if utc:
+        span = f"{_fmt_utc(s.start_ns)} .. {_fmt_utc(s.end_ns)} ({s.span_s:.3f} s)"
+    else:
+        span = f"{_fmt_t(s.start_ns)} s .. {_fmt_t(s.end_ns)} s vehicle time ({s.span_s:.3f} s)"
+    lines.append(f"span      {span}, {s.message_count} messages on {len(s.topics)} topics{chunks}")
     lines.append("")
-    head = ("topic", "schema", "count", "rate Hz", "first s", "last s")
+    head = ("topic", "schema", "count", "rate Hz", "first s", "last s") if not utc else (
+        "topic", "schema", "count", "rate Hz", "first +s", "last +s")
     rows = [
         (
             t.topic,
             t.schema_name or "-",
             str(t.count),
             "-" if t.rate_hz is None else f"{t.rate_hz:.2f}",
-            _fmt_t(t.first_ns),
-            _fmt_t(t.last_ns),
+            _fmt_t(None if t.first_ns is None else t.first_ns - base),
+            _fmt_t(None if t.last_ns is None else t.last_ns - base),
         )
         for t in s.topics
     ]

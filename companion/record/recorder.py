@@ -1,7 +1,9 @@
 """MCAP recorder: every pipeline step on its own JSON topic, positions as Foxglove LocationFix.
 
 Time: a message's log_time and publish_time are the vehicle time ``t_s`` of what it records, in integer
-nanoseconds (``round(t_s * 1e9)``); wall-clock time never enters the record. Payloads are
+nanoseconds (``round(t_s * 1e9)``), plus the UTC offset once a :class:`~companion.record.clock.RecordClock`
+knows it (UTC, Unix epoch ns: see that module); the payloads keep ``t_s``. A ``clock`` metadata record
+says which clock the log times are on. Payloads are
 ``json.dumps(d, separators=(",", ":"), allow_nan=False)`` of the dataclass's ``to_dict()``, so the same
 input gives byte-identical payloads (and, with the same software versions, a byte-identical file).
 
@@ -40,6 +42,7 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 import companion
 from companion.events import Event
+from companion.record.clock import RecordClock
 from companion.record.inspect import RecordError
 from companion.record.schemas import (
     COV_DIAGONAL_KNOWN,
@@ -120,9 +123,11 @@ class Recorder:
     :param flush_interval_s: close a chunk when this much *message* time has passed since its first message.
     :param compression: "zstd" (default; ``zstandard`` is a dependency of ``mcap``), "lz4" or "none".
     :param fsync: also ``os.fsync`` whenever a chunk closes (survives power loss, costs SD-card writes).
-    :param null_style: how derived schemas say "may be null": "foxglove" (default, one ``type`` per field
-        plus ``"nullable": true``, which Foxglove can display) or "jsonschema" (standard ``[X, "null"]``
-        type lists, which Foxglove's reader rejects). See :mod:`companion.record.schemas`.
+    :param clock: log times in UTC once known (:class:`~companion.record.clock.RecordClock`); None: boot time.
+    :param live_view: also publish every message (same topic, schema, bytes and log time) to this
+        :class:`~companion.record.live_view.LiveView` (Foxglove WebSocket server).
+    :param null_style: how derived schemas say "may be null": only "jsonschema" (standard ``[X, "null"]``
+        type lists), see :mod:`companion.record.schemas`.
     """
 
     def __init__(
@@ -133,7 +138,9 @@ class Recorder:
         flush_interval_s: float = 1.0,
         compression: str = "zstd",
         fsync: bool = False,
-        null_style: str = "foxglove",
+        null_style: str = "jsonschema",
+        clock: RecordClock | None = None,
+        live_view: Any = None,
     ):
         if compression not in _COMPRESSION:
             raise ValueError(f"compression must be one of {sorted(_COMPRESSION)}, not {compression!r}")
@@ -153,6 +160,8 @@ class Recorder:
         self._interval_ns = max(1, round(flush_interval_s * 1e9))
         self._fsync = fsync
         self._null_style = null_style
+        self.clock = clock
+        self.live_view = live_view  # companion.record.live_view.LiveView: gets every message written
         self._chunk_bytes = 0
         self._chunk_t0: int | None = None  # log time of the open chunk's first message
         self._busy = False
@@ -187,6 +196,8 @@ class Recorder:
             entry = self._register_dataclass(type(item), topic)
         channel_id, fast, to_json = entry
         t_ns = _time_ns(item.t_s)
+        if self.clock is not None:
+            self.clock.observe(item)
         if fast is not None:
             # Field values straight to json: same bytes as to_dict() (tuples -> arrays, IntEnum -> int),
             # without a per-field Python loop. NaN/inf or a value json cannot take -> the exact to_dict() path.
@@ -308,10 +319,14 @@ class Recorder:
         if self._busy:
             self._close_requested = True
             return
-        self._closed = True
         if self.write_error is not None:
+            self._closed = True
             self._file.close()
             return
+        try:
+            self.add_metadata("clock", self.clock.metadata() if self.clock is not None else RecordClock().metadata())
+        finally:
+            self._closed = True
         try:
             self._writer.finish()
             if self._fsync:
@@ -351,7 +366,12 @@ class Recorder:
         try:
             seq = self._seq[channel_id]
             self._seq[channel_id] = seq + 1
+            if self.clock is not None:
+                t_ns = self.clock.log_ns(t_ns)
             self._writer.add_message(channel_id, t_ns, data, t_ns, seq & 0xFFFFFFFF)
+            if self.live_view is not None:
+                name = self._channel_schema[channel_id]
+                self.live_view.publish(self._channel_topic[channel_id], name, self._schemas[name][1], t_ns, data)
             self._chunk_bytes += _MESSAGE_OVERHEAD + len(data)
             t0 = self._chunk_t0
             if t0 is None:

@@ -6,11 +6,11 @@ from its dataclass fields and type hints and cached:
 ====================================  ==========================================================
 field type                            JSON schema
 ====================================  ==========================================================
-``float``                             ``{"type": "number"}``, nullable (NaN/inf -> null)
+``float``                             ``{"type": ["number", "null"]}`` (NaN/inf -> null)
 ``int`` / ``IntEnum``                 ``{"type": "integer"}``
 ``bool``                              ``{"type": "boolean"}``
 ``str``                               ``{"type": "string"}``
-``X | None``                          schema of X, nullable (see below)
+``X | None``                          schema of X with ``"null"`` added to its type
 ``tuple[float, float, float]``        array of numbers with minItems = maxItems = 3
 ``tuple[float, ...]``, ``list[X]``    array of X
 ``dict[str, X]``                      object (no fixed properties) whose values are X
@@ -20,13 +20,13 @@ nested dataclass                      object (recursively)
 Payloads are what the class's ``to_dict()`` (companion.events.Event) or :func:`to_jsonable` make of an
 instance, so NaN/inf become ``null``.
 
-Null, and why two styles. Standard JSON Schema says "number or null" as ``"type": ["number", "null"]``,
-but Foxglove's JSON-schema reader (``parseJsonSchema`` in @foxglove/mcap-support, also in Lichtblick)
-switches on a single ``type`` string per field and rejects a topic whose schema has a type list, so
-such a record would not display. The default style, ``null_style="foxglove"``, therefore keeps one
-``type`` per field and marks ``X | None`` and float fields with the annotation ``"nullable": true``
-(OpenAPI's keyword; JSON-schema validators ignore it). ``null_style="jsonschema"`` writes the standard type lists instead (``[X, "null"]`` for
-``X | None`` and for every float, since NaN -> null), for tools that validate payloads strictly.
+Null. NaN/inf and ``None`` are recorded as ``null``, so a float or ``X | None`` field says so in standard
+JSON Schema: ``"type": ["number", "null"]`` (``[X, "null"]``). Every payload validates against its
+embedded schema with a standard validator (Python ``jsonschema``, draft 2020-12). The earlier
+``"nullable": true`` (an OpenAPI keyword) is gone: validators ignore it, so they rejected every null.
+Foxglove's Map panel reads only the ``foxglove.LocationFix`` topics, whose schema has no type lists;
+the open-source Foxglove/Lichtblick JSON-schema reader (``parseJsonSchema`` in mcap-support) switches
+on a single ``type`` string, so it lists the other topics' fields only where they have one type.
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ JSON_MESSAGE_ENCODING = "json"
 
 LOCATION_FIX_SCHEMA_NAME = "foxglove.LocationFix"
 
-NULL_STYLES = ("foxglove", "jsonschema")
+NULL_STYLES = ("jsonschema",)
 
 
 def schema_name(cls: type) -> str:
@@ -53,7 +53,7 @@ def schema_name(cls: type) -> str:
 
 
 @lru_cache(maxsize=None)
-def dataclass_schema(cls: type, null_style: str = "foxglove") -> dict:
+def dataclass_schema(cls: type, null_style: str = "jsonschema") -> dict:
     """JSON schema of a dataclass's payload; cached per (class, null_style). Do not mutate the result.
 
     Raises TypeError for a non-dataclass or for a field type with no JSON mapping.
@@ -95,12 +95,9 @@ def _type_schema(tp: Any, strict: bool) -> dict:
             raise TypeError(f"unsupported union {tp!r}: only `X | None` is recorded")
         inner = dict(_type_schema(non_null[0], strict))
         if len(non_null) < len(args):  # Optional
-            if strict:
-                t = inner["type"]
-                t = list(t) if isinstance(t, list) else [t]
-                inner["type"] = t if "null" in t else t + ["null"]
-            else:
-                inner["nullable"] = True
+            t = inner["type"]
+            t = list(t) if isinstance(t, list) else [t]
+            inner["type"] = t if "null" in t else t + ["null"]
         return inner
     if tp is bool:
         return {"type": "boolean"}
@@ -112,7 +109,7 @@ def _type_schema(tp: Any, strict: bool) -> dict:
         return {"type": "integer"}
     if tp is float:
         # NaN/inf are recorded as null, so every float may be null
-        return {"type": ["number", "null"]} if strict else {"type": "number", "nullable": True}
+        return {"type": ["number", "null"]}
     if tp is str:
         return {"type": "string"}
     if origin is tuple:
@@ -132,7 +129,7 @@ def _type_schema(tp: Any, strict: bool) -> dict:
         # "properties": {} so readers that walk properties (Foxglove) accept the field
         return {"type": "object", "properties": {}, "additionalProperties": _type_schema(args[1], strict)}
     if isinstance(tp, type) and dataclasses.is_dataclass(tp):
-        nested = dict(dataclass_schema(tp, "jsonschema" if strict else "foxglove"))
+        nested = dict(dataclass_schema(tp))
         nested.pop("description", None)
         return nested
     raise TypeError(f"unsupported field type {tp!r}")

@@ -22,6 +22,7 @@ yields to the event loop every :data:`YIELD_S` so the signal handler runs.
 from __future__ import annotations
 
 import asyncio
+import logging
 import signal
 import sys
 import time
@@ -37,6 +38,8 @@ from companion.pipeline.core import Pipeline, build_pipeline
 from companion.events import Event, ImuSample
 from companion.mavlink.link import Batch, LinkStatus, MavlinkLink
 from companion.sources.base import SourceInfo
+
+_logger = logging.getLogger(__name__)
 
 _STOP = object()
 #: a batch that waited this long (perf_counter, since its bytes arrived) means the loop is behind: shed load
@@ -85,7 +88,7 @@ class Runtime:
         self._stop_requested = False
         self._rx: tuple[float, str] | None = None
         self._last_batch_wall = time.monotonic()
-        self._log = log if log is not None else (lambda text: print(text, file=sys.stderr, flush=True))
+        self._log = log
 
     # -- callbacks ----------------------------------------------------------------------------
     def _on_sent(self, rec: GpsInputRecord) -> None:
@@ -100,7 +103,11 @@ class Runtime:
         self.link_log.append(st)
         if self.sink is not None:
             self.sink.write(st)
-        self._log(f"companion: link {st.state}: {st.detail}")
+        if self._log is not None:
+            self._log(f"link {st.state}: {st.detail}")
+        else:
+            level = logging.WARNING if st.state in ("lost", "open_failed", "rate_low") else logging.INFO
+            _logger.log(level, "link %s: %s", st.state, st.detail)
         if st.state in ("autopilot", "lost", "reboot", "opened"):
             self.notifier.status(f"link {st.state}: {st.detail}")
 

@@ -19,7 +19,9 @@ from companion.sim.mavlink_out import pack_stream, telemetry_messages
 from companion.sim.tlog import tlog_bytes
 
 REPO = Path(__file__).resolve().parents[2]
-DEFAULT_OUT = REPO / "logs" / "sample_flight.tlog"
+# in a checkout: logs/sample_flight.tlog, a link to the package data companion/data/sample_flight.tlog
+# (the truth CSV goes beside the link); installed: logs/ in the current directory, never site-packages
+DEFAULT_OUT = (REPO if (REPO / "pyproject.toml").exists() else Path(".")) / "logs" / "sample_flight.tlog"
 TRUTH_RATE_HZ = 10.0
 
 

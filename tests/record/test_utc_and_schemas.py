@@ -1,0 +1,74 @@
+"""A replayed real log opens with its real UTC date in independent readers; every message validates
+against the JSON schema embedded in the record (standard ``jsonschema``)."""
+
+from __future__ import annotations
+
+import calendar
+import datetime
+import json
+
+import pytest
+from mcap.reader import make_reader
+
+from companion.cli import main
+from companion.record.clock import RecordClock, gps_minus_utc_s, gps_to_unix_s
+from tests.conftest import LOG_ERLE, require
+
+
+def test_leap_seconds_by_date():
+    assert gps_minus_utc_s(calendar.timegm((2014, 11, 6, 0, 0, 0))) == 16
+    assert gps_minus_utc_s(calendar.timegm((2016, 1, 1, 0, 0, 0))) == 17
+    assert gps_minus_utc_s(calendar.timegm((2020, 3, 3, 0, 0, 0))) == 18
+    # GPS week 2095, 1 s into it: 2020-03-01 00:00:01 GPS = 2020-02-29 23:59:43 UTC
+    assert gps_to_unix_s(2095, 1.0) == calendar.timegm((2020, 2, 29, 23, 59, 43))
+
+
+def test_clock_before_and_after_utc():
+    from companion.events import SystemTime
+
+    c = RecordClock()
+    assert c.log_ns(5_000) == 5_000  # boot time until the UTC is known
+    c.observe(SystemTime(t_s=10.0, unix_time_s=1_600_000_000.0))
+    assert c.log_ns(11 * 10**9) == 1_600_000_001 * 10**9
+    c.observe(SystemTime(t_s=10.0, unix_time_s=1_700_000_000.0))  # taken once: deterministic
+    assert c.log_ns(11 * 10**9) == 1_600_000_001 * 10**9
+    assert c.metadata()["log_time"].startswith("UTC") and "1 earlier" in c.metadata()["before_utc"]
+    live = RecordClock(host_fallback=True)
+    assert live.log_ns(0) > 1_600_000_000 * 10**9  # link events before any vehicle time: host UTC, not 0
+
+
+@pytest.fixture(scope="module")
+def erle_record(tmp_path_factory):
+    log = require(LOG_ERLE)
+    out = tmp_path_factory.mktemp("utc") / "erle.mcap"
+    assert main(["replay", "--quiet", "--out", str(out), str(log)]) in (0, 3)
+    return out
+
+
+def test_replayed_log_has_its_utc_date(erle_record, capsys):
+    with open(erle_record, "rb") as f:
+        stats = make_reader(f).get_summary().statistics
+    start = datetime.datetime.fromtimestamp(stats.message_start_time / 1e9, datetime.timezone.utc)
+    assert start.date() == datetime.date(2014, 11, 6), start  # the flight's day (from its GPS week/time)
+    assert stats.message_end_time - stats.message_start_time < 200 * 10**9
+    capsys.readouterr()
+    assert main(["inspect", str(erle_record)]) == 0
+    text = capsys.readouterr().out
+    assert "span      2014-11-06T" in text and "log_time = UTC, Unix epoch ns" in text
+
+
+def test_every_message_validates_against_its_schema(erle_record):
+    import jsonschema
+
+    validators, n = {}, 0
+    with open(erle_record, "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            v = validators.get(schema.id)
+            if v is None:
+                s = json.loads(schema.data)
+                jsonschema.Draft202012Validator.check_schema(s)
+                v = validators[schema.id] = jsonschema.Draft202012Validator(s)
+            errors = list(v.iter_errors(json.loads(message.data)))
+            assert not errors, f"{channel.topic}: {errors[0].message}"
+            n += 1
+    assert n > 1000 and len(validators) >= 5
