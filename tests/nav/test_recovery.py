@@ -10,7 +10,7 @@ import pytest
 from companion.events import GnssFix, ImuSample
 from companion.nav.navigator import Navigator, NavigatorConfig, run_navigator
 from companion.nav.outputs import FusedState, MeasurementUpdate, NavigatorReset
-from companion.sim.circle import SimNoise, simulate_flight
+from companion.sim.circle import SimNoise, simulate_circle_flight as simulate_flight
 
 RECEIVER = SimNoise(gnss_std_h_m=0.5, gnss_std_v_m=0.8)
 
