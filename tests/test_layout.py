@@ -136,3 +136,17 @@ def test_no_mavlink_enum_value_is_redeclared():
             for m in re.finditer(r"^\s+(NO_GPS|NO_FIX|FIX_2D|FIX_3D) = \d+$", src, re.M):
                 bad.append(f"{p.relative_to(REPO)}: {m.group(0).strip()}")
     assert not bad, bad
+
+
+@pytest.mark.parametrize("core", ["nav", "gravity"])
+def test_numerical_cores_import_no_io_machinery(core):
+    """nav/ and gravity/ never import asyncio, pymavlink, sockets or threads themselves (the matchers' compute-time
+    measurement with time.perf_counter is their only clock)."""
+    banned = ("asyncio", "pymavlink", "socket", "threading", "serial", "select")
+    bad = []
+    for p in sorted((PACKAGE / core).rglob("*.py")):
+        for node in ast.walk(ast.parse(p.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            bad += [f"{p.relative_to(REPO)}: {n}" for n in names if n.split(".")[0] in banned]
+    assert not bad, bad
