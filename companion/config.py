@@ -150,7 +150,9 @@ _RANGES: dict[str, tuple[float, float]] = {
     "navigator.imu_index": (0, 3), "navigator.gnss_instance": (0, 1), "navigator.gnss_delay_s": (0.0, 1.0),
     "navigator.reorder_window_s": (0.0, 2.0), "navigator.max_imu_step_s": (1e-3, 1.0),
     "navigator.rate_window_s": (0.1, 60.0), "navigator.imu_timeout_s": (0.1, 60.0),
-    "navigator.hold_prior_max_lag_s": (1, 600), "navigator.predictor_sigma_scale": (0.1, 100.0),
+    "navigator.hold_prior_max_lag_s": (1, 600), "navigator.reset_after_n_rejected": (1, 10000),
+    "navigator.att_reset_after_n_rejected": (1, 10000), "navigator.reset_cov_scale": (1.0, 1000.0),
+    "navigator.future_confirm_n": (1, 1000), "navigator.predictor_sigma_scale": (0.1, 100.0),
     "navigator.ahrs_check_min_coherence": (0.0, 1.0), "navigator.output_rate_hz": (0.1, 50.0),
 }
 #: record.segment_s between 0 (one file) and this is refused: a new file every few seconds is a runaway

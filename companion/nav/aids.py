@@ -7,11 +7,20 @@ import math
 
 from companion.constants import receiver_sigma
 from companion.events import GnssFix, PositionFix
-from companion.nav.measurements import HorizontalPositionMeasurement
+from companion.nav.measurements import HorizontalPositionMeasurement, VelocityMeasurement
 
 
 class Aids:
-    """Mixin: fix sigmas and the PositionFix aid."""
+    """Mixin: fix sigmas, the PositionFix aid and the zero-velocity pseudo-measurement."""
+
+    def _zero_velocity_update(self, t: float) -> None:
+        """A detected hover during a blockage: the vehicle is not going anywhere (companion.nav.hover)."""
+        c = self.config
+        self._zupt_t = t
+        m = VelocityMeasurement(t, "zero_velocity", (0.0, 0.0, 0.0), c.zupt_sigma_mps, c.gate_chi2)
+        ok = self._ins_apply(m)[0] if self.mode == "ins" else (self._kin is not None and self._kin_apply(m, True)[0])
+        if ok:
+            self._used.add("zero_velocity")
 
     def _fix_sigmas(self, ev: GnssFix) -> tuple[float, float, float, float]:
         """(update sigma h, v, gate sigma h, v). The gate always uses the receiver's accuracy."""

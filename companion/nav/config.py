@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from companion.constants import CHI2_2DOF_999, CHI2_3DOF_999
+from companion.nav.hover import HoverConfig
 from companion.nav.knn_predictor import KnnConfig
 
 
@@ -131,6 +132,13 @@ class NavigatorConfig:
     # 3D fixes reset position/velocity to GNSS, att_reset_after_n_rejected rejected autopilot attitudes the tilt,
     # with the fix's (the initial attitude's) variance x reset_cov_scale. An event more than future_outlier_s
     # ahead of the stream is held until future_confirm_n consecutive events confirm the jump, else dropped.
+    # zero-velocity pseudo-measurement (companion.nav.hover): while the detector says hover and no fix has come for
+    # zupt_min_age_s, a zero NED velocity with zupt_sigma_mps is fused every zupt_interval_s.
+    zero_velocity: bool = True
+    hover: HoverConfig = field(default_factory=HoverConfig)
+    zupt_sigma_mps: float = 0.3
+    zupt_interval_s: float = 1.0
+    zupt_min_age_s: float = 1.5
     reinit_gap_s: float = 5.0
     reset_after_rejection: bool = True
     reset_after_n_rejected: int = 30

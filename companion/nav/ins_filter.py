@@ -143,6 +143,7 @@ class InsFilter:
         c = self.config
         t = ev.t_s
         self._imu_times.append(t)
+        self.hover.add_imu(t, ev.accel_frd_mps2, ev.gyro_frd_radps)
         prev_t = self._last_imu_t
         self._last_imu_t = t
         ac = self._att_c

@@ -133,7 +133,8 @@ class HorizontalPositionMeasurement(Measurement):
 
 @dataclass(frozen=True)
 class VelocityMeasurement(Measurement):
-    """GNSS NED velocity (INS filter only)."""
+    """A NED velocity: GNSS ("gnss_vel", INS filter only) or the zero-velocity pseudo-measurement of a detected
+    hover ("zero_velocity", companion.nav.hover)."""
 
     z_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
     sigma_mps: float = 0.3
@@ -150,6 +151,14 @@ class VelocityMeasurement(Measurement):
 
     def H_ins(self):
         H = np.zeros((3, 15))
+        H[:, 3:6] = np.eye(3)
+        return H
+
+    def h_kin(self, x, delay_s):
+        return x[3:6]
+
+    def H_kin(self, delay_s):
+        H = np.zeros((3, 6))
         H[:, 3:6] = np.eye(3)
         return H
 

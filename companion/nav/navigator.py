@@ -49,6 +49,7 @@ from companion.nav.config import NavigatorConfig
 from companion.nav.ins import StrapdownIns, dcm_from_quat, quat_from_euler
 from companion.nav.ins_filter import InsFilter
 from companion.nav.kinematic import KinematicFilter
+from companion.nav.hover import HoverDetector
 from companion.nav.knn_predictor import KnnPredictor
 from companion.nav.measurements import PositionMeasurement, VelocityMeasurement
 from companion.nav.modes import Modes
@@ -100,6 +101,8 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
         self._f_n = 0
         self._hist: deque[list[float]] = deque()  # [t, n, e, d, vn, ve, vd] per IMU step, last delay + 0.2 s
         self._monitors_init()
+        self.hover = HoverDetector(c.hover)
+        self._zupt_t = -math.inf
         # kinematic filter
         self._kin: KalmanFilter | None = None
         self._kin_t = 0.0
@@ -182,6 +185,8 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
         if ev.vel_n_mps is not None and ev.vel_e_mps is not None:
             vel = (ev.vel_n_mps, ev.vel_e_mps, ev.vel_d_mps if ev.vel_d_mps is not None else math.nan)
         gnss_gap = self._note_fix(ev, vel)
+        if vel is not None:
+            self.hover.add_speed(t, math.hypot(vel[0], vel[1]))
         if self._reinit_pending is not None:
             self._reinit(t, z, vel)
             self._fix_accepted(t, z, sh, sv, vel)
@@ -247,6 +252,9 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
                         self._used.add("predictor")
         if self.mode == "init":
             return
+        if (c.zero_velocity and self._last_fix_t is not None and tg - self._last_fix_t >= c.zupt_min_age_s
+                and tg - self._zupt_t >= c.zupt_interval_s and self.hover.hover(tg)):
+            self._zero_velocity_update(tg)
         if self.mode == "ins":
             self._ins_predict(tg)
             ins = self.ins
@@ -274,7 +282,7 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
             P = self._kin.P
         diag = tuple(float(v) for v in np.diag(P))
         lat, lon, alt = self.frame.geodetic_tuple(n, e, d)
-        used = "+".join(sorted(self._used, key=("gnss", "predictor", "position_fix", "altitude").index)) or "none"
+        used = "+".join(sorted(self._used, key=("gnss", "predictor", "position_fix", "altitude", "zero_velocity").index)) or "none"
         self._out.append(
             FusedState(
                 tg, lat, lon, alt, n, e, d, *vel, *rpy, diag,
