@@ -1,0 +1,1 @@
+"""Benchmarks against live autopilots (ArduPilot SITL): the process driver and its pure analysis."""
