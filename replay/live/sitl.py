@@ -61,7 +61,7 @@ COMPANION_PARAMS = {
 }
 STREAMS_HZ = {  # requested on the harness's own link (SERIAL0) with SET_MESSAGE_INTERVAL
     "GLOBAL_POSITION_INT": 25, "SIMSTATE": 50, "ATTITUDE": 50, "LOCAL_POSITION_NED": 10, "GPS_RAW_INT": 5,
-    "GPS2_RAW_INT": 5, "EKF_STATUS_REPORT": 2, "SYS_STATUS": 1, "HEARTBEAT": 1,
+    "GPS2_RAW": 5, "EKF_STATUS_REPORT": 2, "SYS_STATUS": 1, "HEARTBEAT": 1,
 }
 EKF_READY_FLAGS = 0x10 | 0x200  # ESTIMATOR_POS_HORIZ_ABS | ESTIMATOR_PRED_POS_HORIZ_ABS
 
@@ -138,7 +138,7 @@ class Vehicle:
         last = None
         while True:  # SITL binds its port shortly after start: retry until it accepts (bounded)
             try:
-                self.m = mavutil.mavlink_connection(url, source_system=250, source_component=190, retries=0)
+                self.m = mavutil.mavlink_connection(url, dialect="ardupilotmega", source_system=250, source_component=190, retries=0)
                 break
             except OSError as e:
                 last = e
@@ -297,6 +297,10 @@ def fly(sc: core.Scenario, arm: str, a, work: Path) -> core.ArmResult:
         if veh is not None:
             veh.close()
         stop_pid(sitl)
+        with suppress(OSError):
+            (run_dir / "texts.txt").write_text("".join(f"{t:9.3f} {sev} {txt}\n" for t, sev, txt in log.texts)
+                                               + "".join(f"{t:9.3f} harness: {txt}\n" for t, txt in log.events)
+                                               + "".join(f"{t:9.3f} mode {m} armed {a}\n" for t, m, a in log.modes))
     if arm == "B" and mcap.exists():
         records = read_gps_input(mcap)
         notes.append(f"companion MCAP: {len(records)} GPS_INPUT records")

@@ -125,7 +125,7 @@ class FlightLog:
             state = (int(m.custom_mode), armed)
             if not self.modes or self.modes[-1][1:] != state:
                 self.modes.append((t if t is not None else math.nan, *state))
-        elif kind in ("GPS_RAW_INT", "GPS2_RAW_INT"):
+        elif kind in ("GPS_RAW_INT", "GPS2_RAW"):
             if t is not None:
                 self.gps[1 if kind == "GPS_RAW_INT" else 2].append((t, int(m.fix_type), int(m.satellites_visible)))
         elif kind == "EKF_STATUS_REPORT":
@@ -307,7 +307,7 @@ def fix_counts(log: FlightLog, instance: int, t0: float = -math.inf, t1: float =
 def companion_error(records: list[dict], truth) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(boot time, error, fix_type) of every GPS_INPUT the companion sent, against the truth at the time it claims
     (``time_boot_us``: the autopilot boot time of the state the message describes)."""
-    recs = [r for r in records if r.get("sent") and r.get("lat_deg") is not None and r.get("time_boot_us")]
+    recs = [r for r in records if r.get("sent") and r.get("lat_deg") is not None and r.get("time_boot_us") is not None]
     if not recs:
         return np.zeros(0), np.zeros(0), np.zeros(0, int)
     t = np.array([r["time_boot_us"] / 1e6 for r in recs])
@@ -430,8 +430,8 @@ def companion_table(results: list[ArmResult]) -> str:
                     + [_f(r.own_err_at.get(o, math.nan), 1) for o in OWN_MARKS])
     if not rows:
         return ""
-    return md(["scenario", "fix types sent (type:count)", "GPS2_RAW_INT fix types (whole flight)",
-               "GPS2_RAW_INT during denial", "own error before denial, mean (m)"]
+    return md(["scenario", "fix types sent (type:count)", "GPS2_RAW fix types (whole flight)",
+               "GPS2_RAW during denial", "own error before denial, mean (m)"]
               + [f"own error +{int(o)} s (m)" for o in OWN_MARKS], rows)
 
 
