@@ -496,8 +496,7 @@ def _summary(r: core.ArmResult) -> dict:
     return json.loads(json.dumps(d, default=str).replace("NaN", "null"))
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
+def parse_args(argv: list[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m replay.live.sitl", description=__doc__.split("\n\n")[0])
     p.add_argument("--sitl-bin", help="ArduCopter SITL binary (default: env COMPANION_SITL_BIN)")
     p.add_argument("--sitl-defaults", help="ArduPilot defaults file (default: copter.parm relative to the binary; 'none')")
@@ -515,6 +514,12 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     a.sitl_bin_path = resolve_bin(a.sitl_bin)
     a.defaults_path = resolve_defaults(a.sitl_defaults, a.sitl_bin_path)
+    return a
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    a = parse_args(argv)
     started = time.strftime("%Y-%m-%d %H:%M:%S %Z")
     load_before = machine_state()
     work = Path(tempfile.mkdtemp(prefix="sitl_ab_"))
