@@ -224,3 +224,18 @@ def test_scenarios_are_consistent():
     assert corners[-1] == (0.0, 0.0) and len(corners) == 4
     for d in core.DEFAULT_SCENARIOS:
         assert d in core.SCENARIOS
+
+
+def test_best_lag_finds_a_delayed_source():
+    """An EKF that reports the truth of 0.3 s ago, on a vehicle flying 5 m/s north: tau = 0.3 s, error ~0."""
+    log = scripted_flight(lambda t: 0.0)
+    a = np.asarray(log.ekf)
+    tau, e = core.best_lag(a[:, 0], a[:, 1], a[:, 2], log.truth)
+    assert tau == pytest.approx(0.0, abs=0.011) and e < 0.02
+    delayed = [(t, LAT0 + 5.0 * (t - 0.3) / M_PER_DEG, lon) for t, _lat, lon, _alt in log.ekf]
+    d = np.asarray(delayed)
+    tau, e = core.best_lag(d[:, 0], d[:, 1], d[:, 2], log.truth)
+    assert tau == pytest.approx(0.3, abs=0.011) and e < 0.05
+    r = core.analyse(core.SCENARIOS["square-deny-30"], "A", log)
+    assert r.ekf_lag_s == pytest.approx(0.0, abs=0.011)
+    assert "EKF delay vs truth" in core.lag_table([r])

@@ -481,6 +481,11 @@ def write_results(results: list[core.ArmResult], a, argv: list[str], started: st
     if ct:
         text += ["### The companion's GPS_INPUT (arm B)\n",
                  "Own error: the companion's sent GPS_INPUT position vs truth at the time_usec it claims.\n", ct, ""]
+    lt = core.lag_table(results)
+    if lt:
+        text += ["### Delay on the square (before any denial)\n",
+                 "The time shift tau that best aligns the position with the truth at t - tau (0.01 s steps): "
+                 "what a delayed source costs at 8 m/s is about 8 m/s x tau.\n", lt, ""]
     verdicts = core.ab_verdicts(results)
     if verdicts:
         text += ["### Against the targets\n"] + verdicts + [""]
@@ -544,6 +549,7 @@ def main(argv: list[str] | None = None) -> int:
     print(core.phase_table(results))
     print(core.marks_table(results))
     print(core.companion_table(results))
+    print(core.lag_table(results))
     if not a.no_write and results:
         write_results(results, a, argv, started, load_before)
         print(f"wrote {RESULTS_MD}")

@@ -212,6 +212,30 @@ def ekf_error(log: FlightLog) -> tuple[np.ndarray, np.ndarray]:
     return a[ok, 0], err[ok]
 
 
+def best_lag(t, lat, lon, truth, taus=None) -> tuple[float, float]:
+    """(tau, mean error at tau): the delay tau for which the samples best match the truth at t - tau.
+
+    A position source that reports the state of tau seconds ago shows as tau > 0; on a vehicle moving at v the
+    error it costs is about v * tau. NaN when there are too few samples."""
+    t = np.asarray(t, float)
+    if len(t) < 20:
+        return math.nan, math.nan
+    taus = np.arange(-0.3, 1.0001, 0.01) if taus is None else np.asarray(taus, float)
+    means = np.array([np.nanmean(horizontal_error(t - tau, lat, lon, truth)) for tau in taus])
+    if not np.isfinite(means).any():
+        return math.nan, math.nan
+    i = int(np.nanargmin(means))
+    return float(taus[i]), float(means[i])
+
+
+def _window(rows, t0: float, t1: float):
+    a = np.asarray(rows, float)
+    if a.size == 0:
+        return a.reshape(0, 3)
+    sel = (a[:, 0] >= t0) & (a[:, 0] < t1)
+    return a[sel]
+
+
 # -- phases -----------------------------------------------------------------------------------------------------------
 PHASES = ("hover", "square", "denial", "recovery")
 
@@ -340,6 +364,10 @@ class ArmResult:
     own_t: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
     own_err: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
     deny_on: float = math.nan
+    ekf_lag_s: float = math.nan  # best_lag of the EKF over the square before any denial
+    ekf_lag_err: float = math.nan
+    own_lag_s: float = math.nan  # best_lag of the companion's GPS_INPUT (vs the time it claims) over the same window
+    own_lag_err: float = math.nan
     notes: list[str] = field(default_factory=list)
 
 
@@ -364,6 +392,17 @@ def analyse(scenario: Scenario, arm: str, log: FlightLog, records: list[dict] | 
     healthy_end = deny_on if have_deny else log.marks.get("end", math.inf)
     sel = (own_t >= log.marks.get("hover", math.inf)) & (own_t < healthy_end)
     off = log.marks.get("deny_off", math.inf)
+    lag = (math.nan, math.nan)
+    own_lag = (math.nan, math.nan)
+    if "square" in iv:
+        w = _window(log.ekf, *iv["square"])
+        if len(w):
+            lag = best_lag(w[:, 0], w[:, 1], w[:, 2], log.truth)
+        recs = [r for r in (records or []) if r.get("sent") and r.get("time_boot_us") is not None
+                and iv["square"][0] <= r["time_boot_us"] / 1e6 < iv["square"][1]]
+        if recs:
+            own_lag = best_lag([r["time_boot_us"] / 1e6 for r in recs], [r["lat_deg"] for r in recs],
+                               [r["lon_deg"] for r in recs], log.truth)
     return ArmResult(
         scenario=scenario.name, arm=arm, armed=math.isfinite(arm_t), arm_time_s=arm_t, refusals=arm_refusals(log),
         phases=phase_stats(t, err, iv),
@@ -374,6 +413,7 @@ def analyse(scenario: Scenario, arm: str, log: FlightLog, records: list[dict] | 
         sent_fix=dict(sorted(Counter(int(f) for f in own_fx).items())), own_err_at=own_at,
         own_healthy_mean=float(own_err[sel].mean()) if sel.any() else math.nan,
         t_err=t, err=err, own_t=own_t, own_err=own_err, deny_on=deny_on,
+        ekf_lag_s=lag[0], ekf_lag_err=lag[1], own_lag_s=own_lag[0], own_lag_err=own_lag[1],
     )
 
 
@@ -433,6 +473,16 @@ def companion_table(results: list[ArmResult]) -> str:
     return md(["scenario", "fix types sent (type:count)", "GPS2_RAW fix types (whole flight)",
                "GPS2_RAW during denial", "own error before denial, mean (m)"]
               + [f"own error +{int(o)} s (m)" for o in OWN_MARKS], rows)
+
+
+def lag_table(results: list[ArmResult]) -> str:
+    rows = [[r.scenario, ARM_NAMES.get(r.arm, r.arm), _f(r.ekf_lag_s), _f(r.ekf_lag_err),
+             _f(r.own_lag_s) if r.arm == "B" else "", _f(r.own_lag_err) if r.arm == "B" else ""]
+            for r in results if math.isfinite(r.ekf_lag_s)]
+    if not rows:
+        return ""
+    return md(["scenario", "arm", "EKF delay vs truth (s)", "EKF error at that delay (m)",
+               "GPS_INPUT delay vs its time_usec (s)", "GPS_INPUT error at that delay (m)"], rows)
 
 
 def arming_lines(results: list[ArmResult]) -> str:
