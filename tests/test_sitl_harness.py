@@ -239,3 +239,16 @@ def test_best_lag_finds_a_delayed_source():
     r = core.analyse(core.SCENARIOS["square-deny-30"], "A", log)
     assert r.ekf_lag_s == pytest.approx(0.0, abs=0.011)
     assert "EKF delay vs truth" in core.lag_table([r])
+
+
+def test_flight_log_round_trips_through_json():
+    import json
+
+    log = scripted_flight(lambda t: 0.5, failsafe_at=50.0)
+    log.on_message(Msg("GPS2_RAW", fix_type=3, satellites_visible=10))
+    log.note("lap 1")
+    back = core.FlightLog.from_dict(json.loads(json.dumps(log.to_dict()).replace("NaN", "null")))
+    a = core.analyse(core.SCENARIOS["square-deny-30"], "A", log)
+    b = core.analyse(core.SCENARIOS["square-deny-30"], "A", back)
+    assert core.phase_table([a]) == core.phase_table([b]) and core.marks_table([a]) == core.marks_table([b])
+    assert back.gps[2] == log.gps[2] and back.events == log.events

@@ -297,6 +297,8 @@ def fly(sc: core.Scenario, arm: str, a, work: Path) -> core.ArmResult:
         if veh is not None:
             veh.close()
         stop_pid(sitl)
+        with suppress(OSError, ValueError, TypeError):
+            (work / f"log_{sc.name}_{arm}.json").write_text(json.dumps(log.to_dict()).replace("NaN", "null"))
         with suppress(OSError):
             (run_dir / "texts.txt").write_text("".join(f"{t:9.3f} {sev} {txt}\n" for t, sev, txt in log.texts)
                                                + "".join(f"{t:9.3f} harness: {txt}\n" for t, txt in log.events)
@@ -449,7 +451,8 @@ def sitl_commit(sitl_bin: Path) -> str:
         return "unknown"
 
 
-def write_results(results: list[core.ArmResult], a, argv: list[str], started: str, load_before: str) -> None:
+def write_results(results: list[core.ArmResult], a, argv: list[str], started: str, load_before: str,
+                  after: str | None = None) -> None:
     from replay.gravity2.common import write_section
 
     RESULTS.mkdir(parents=True, exist_ok=True)
@@ -464,7 +467,7 @@ def write_results(results: list[core.ArmResult], a, argv: list[str], started: st
         f"Command: `{' '.join(['python -m replay.live.sitl'] + argv)}`  ",
         f"SITL: `{a.sitl_bin_path}` at ArduPilot commit {sitl_commit(a.sitl_bin_path)}; `--speedup {a.speedup}`; "
         f"defaults: {a.defaults_path or 'none (harness params only)'} + the harness's own params.  ",
-        f"Started {started}; machine before: {load_before}; after: {machine_state()}.  ",
+        f"Started {started}; machine before: {load_before}; after: {after or machine_state()}.  ",
         f"Both arms: {', '.join(f'{k}={v}' for k, v in VEHICLE_PARAMS.items())}. Arm B adds "
         f"{', '.join(f'{k}={v}' for k, v in params_b.items())}"
         + (f" and `--set {' '.join(a.companion_set)}`" if a.companion_set else "") + ".\n",
@@ -514,20 +517,50 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--companion-set", action="append", metavar="SECTION.KEY=VALUE", help="passed to companion run --set")
     p.add_argument("--arm-timeout", type=float, default=90.0)
     p.add_argument("--tag", default="", help="suffix of the results block/PNG/JSON (e.g. _autoswitch2)")
-    p.add_argument("--keep", action="store_true", help="keep the temporary directory (SITL and companion output)")
+    p.add_argument("--keep", action="store_true", default=True,
+                   help="keep the temporary directory: SITL and companion output, flight logs for --from-dir (default)")
+    p.add_argument("--clean", dest="keep", action="store_false", help="delete the temporary directory at the end")
     p.add_argument("--no-write", action="store_true", help="print only; do not touch replay/results")
+    p.add_argument("--from-dir", help="re-analyse the flights kept in this directory (--keep) instead of flying")
     a = p.parse_args(argv)
     a.sitl_bin_path = resolve_bin(a.sitl_bin)
     a.defaults_path = resolve_defaults(a.sitl_defaults, a.sitl_bin_path)
     return a
 
 
+def reanalyse(a, work: Path) -> int:
+    run = json.loads((work / "run.json").read_text())
+    results = []
+    for name in a.scenarios:
+        for arm in a.arms:
+            p = work / f"log_{name}_{arm}.json"
+            if not p.exists():
+                continue
+            log = core.FlightLog.from_dict(json.loads(p.read_text()))
+            mcap = work / f"companion_{name}.mcap"
+            recs = read_gps_input(mcap) if arm == "B" and mcap.exists() else []
+            r = core.analyse(core.SCENARIOS[name], arm, log, recs)
+            if arm == "B":
+                r.notes.append(f"companion MCAP: {len(recs)} GPS_INPUT records")
+            results.append(r)
+    print(core.phase_table(results))
+    print(core.marks_table(results))
+    print(core.companion_table(results))
+    print(core.lag_table(results))
+    if not a.no_write and results:
+        write_results(results, a, run["argv"], run["started"], run["load_before"], after=run.get("load_after"))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     a = parse_args(argv)
+    if a.from_dir:
+        return reanalyse(a, Path(a.from_dir))
     started = time.strftime("%Y-%m-%d %H:%M:%S %Z")
     load_before = machine_state()
     work = Path(tempfile.mkdtemp(prefix="sitl_ab_"))
+    (work / "run.json").write_text(json.dumps({"argv": argv, "started": started, "load_before": load_before}))
     results = []
     try:
         for name in a.scenarios:
@@ -546,6 +579,9 @@ def main(argv: list[str] | None = None) -> int:
             import shutil
 
             shutil.rmtree(work, ignore_errors=True)
+    with suppress(OSError):
+        run = json.loads((work / "run.json").read_text()) if (work / "run.json").exists() else {}
+        (work / "run.json").write_text(json.dumps({**run, "load_after": machine_state()}))
     print(core.phase_table(results))
     print(core.marks_table(results))
     print(core.companion_table(results))

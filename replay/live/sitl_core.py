@@ -132,6 +132,24 @@ class FlightLog:
             if t is not None:
                 self.ekf_flags.append((t, int(m.flags)))
 
+    def to_dict(self) -> dict:
+        return {"ekf": self.ekf, "truth": self.truth, "texts": self.texts, "modes": self.modes,
+                "gps": {str(k): v for k, v in self.gps.items()}, "ekf_flags": self.ekf_flags, "marks": self.marks,
+                "events": self.events}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "FlightLog":
+        log = cls()
+        log.ekf = [tuple(x) for x in d["ekf"]]
+        log.truth = [tuple(x) for x in d["truth"]]
+        log.texts = [(math.nan if t is None else t, s, x) for t, s, x in d["texts"]]
+        log.modes = [(math.nan if t is None else t, m, a) for t, m, a in d["modes"]]
+        log.gps = {int(k): [tuple(x) for x in v] for k, v in d["gps"].items()}
+        log.ekf_flags = [tuple(x) for x in d["ekf_flags"]]
+        log.marks = dict(d["marks"])
+        log.events = [tuple(x) for x in d["events"]]
+        return log
+
     def mark(self, name: str, t: float | None = None) -> None:
         self.marks[name] = self.t_boot if t is None else t
 
