@@ -415,19 +415,30 @@ def plot(results: list[core.ArmResult], path: Path) -> None:
     for ax, sc in zip(axes[:, 0], scen):
         d = core.SCENARIOS[sc].deny_s
         ax.axvspan(0, d, color="0.9", label=f"GPS1 denied ({d:g} s)")
+        x0, x1 = -20.0, d + core.SCENARIOS[sc].recover_s
+        top = 1.0
         for r in (x for x in denied if x.scenario == sc):
             col = "tab:blue" if r.arm == "A" else "tab:red"
-            ax.plot(r.t_err - r.deny_on, r.err, color=col, lw=1.2, label=f"EKF, {core.ARM_NAMES[r.arm]}")
+            tx = r.t_err - r.deny_on
+            ax.plot(tx, r.err, color=col, lw=1.2, label=f"EKF, {core.ARM_NAMES[r.arm]}")
+            sel = (tx >= x0) & (tx <= x1)
+            top = max(top, float(r.err[sel].max()) if sel.any() else 0.0)
             if r.arm == "B" and len(r.own_t):
-                ax.plot(r.own_t - r.deny_on, r.own_err, color="tab:orange", lw=0.8, ls="--",
-                        label="companion's own GPS_INPUT")
-            for v, ls, what in ((r.failsafe_s, ":", "failsafe"), (r.land_s, "-.", "LAND")):
-                if math.isfinite(v):
-                    ax.axvline(v, color=col, ls=ls, lw=1, label=f"{what} ({r.arm}) +{v:.0f} s")
-        ax.set_xlim(-20, d + core.SCENARIOS[sc].recover_s)
-        ax.set_ylim(bottom=0)
-        ax.set_yscale("symlog", linthresh=1.0)
-        ax.set_title(f"{sc}: horizontal error vs SITL truth")
+                ox = r.own_t - r.deny_on
+                ax.plot(ox, r.own_err, color="tab:orange", lw=0.9, ls="--", label="companion's own GPS_INPUT (B)")
+                sel = (ox >= x0) & (ox <= x1)
+                top = max(top, float(r.own_err[sel].max()) if sel.any() else 0.0)
+            fs, land = r.failsafe_s, r.land_s
+            if math.isfinite(fs) and math.isfinite(land) and abs(fs - land) < 0.5:
+                ax.axvline(fs, color=col, ls=":", lw=1.3, label=f"EKF failsafe -> LAND ({r.arm}) +{fs:.0f} s")
+            else:
+                for v, ls, what in ((fs, ":", "EKF failsafe"), (land, "-.", "LAND")):
+                    if math.isfinite(v):
+                        ax.axvline(v, color=col, ls=ls, lw=1.3, label=f"{what} ({r.arm}) +{v:.0f} s")
+        ax.set_xlim(x0, x1)
+        ax.set_ylim(0, top * 1.15)
+        ax.set_title(f"{sc}: horizontal position error vs SITL truth (A: ArduPilot alone, B: + companion as GPS2)",
+                     fontsize=9)
         ax.set_xlabel("time since GPS1 denied (s)")
         ax.set_ylabel("error (m)")
         ax.grid(alpha=0.3)
@@ -473,7 +484,8 @@ def write_results(results: list[core.ArmResult], a, argv: list[str], started: st
         + (f" and `--set {' '.join(a.companion_set)}`" if a.companion_set else "") + ".\n",
         "EKF error = GLOBAL_POSITION_INT vs SIMSTATE truth interpolated to its time_boot_ms (SIMSTATE stamped with "
         "the newest time_boot_ms on the stream, SIMSTATE and ATTITUDE both at 50 Hz: <= 20 ms). Times after the "
-        "denial are from the moment SIM_GPS1_ENABLE=0 was sent.\n",
+        "denial are from the moment SIM_GPS1_ENABLE=0 was sent. An EKF failsafe switches to LAND (FS_EKF_ACTION default): "
+        "from then on the vehicle descends and the recovery columns describe a landing vehicle, not the flight.\n",
         "### EKF horizontal error per phase, failsafe timing\n",
         core.phase_table(results), "",
     ]
