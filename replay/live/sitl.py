@@ -474,7 +474,9 @@ def write_results(results: list[core.ArmResult], a, argv: list[str], started: st
                               "Written by `python -m replay.live.sitl`; each block names the command that produced it.\n")
     params_b = {**COMPANION_PARAMS, "GPS_AUTO_SWITCH": a.gps_auto_switch}
     text = [
-        f"## Run{a.tag or ''}: {', '.join(dict.fromkeys(r.scenario for r in results))}\n",
+        f"## {', '.join(dict.fromkeys(r.scenario for r in results))}"
+        + (f" (arm B with GPS_AUTO_SWITCH={a.gps_auto_switch})" if a.gps_auto_switch != 0 else "")
+        + (f" (companion --set {' '.join(a.companion_set)})" if a.companion_set else "") + "\n",
         f"Command: `{' '.join(['python -m replay.live.sitl'] + argv)}`  ",
         f"SITL: `{a.sitl_bin_path}` at ArduPilot commit {sitl_commit(a.sitl_bin_path)}; `--speedup {a.speedup}`; "
         f"defaults: {a.defaults_path or 'none (harness params only)'} + the harness's own params.  ",
@@ -541,7 +543,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 
 def reanalyse(a, work: Path) -> int:
+    """Rebuild the results of a kept run from its flight logs, with the run's own options (scenarios, tag ...)."""
     run = json.loads((work / "run.json").read_text())
+    no_write = a.no_write
+    a = parse_args(run["argv"])
     results = []
     for name in a.scenarios:
         for arm in a.arms:
@@ -559,7 +564,7 @@ def reanalyse(a, work: Path) -> int:
     print(core.marks_table(results))
     print(core.companion_table(results))
     print(core.lag_table(results))
-    if not a.no_write and results:
+    if not no_write and results:
         write_results(results, a, run["argv"], run["started"], run["load_before"], after=run.get("load_after"))
     return 0
 
