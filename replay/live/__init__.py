@@ -1,4 +1,4 @@
-"""Benchmarks of the live companion: GPS_INPUT latency, replay throughput and the long GNSS denial run."""
+"""Benchmarks of the live companion: GPS_INPUT latency, replay throughput, the long GNSS denial run, SITL A/B."""
 
 import socket
 

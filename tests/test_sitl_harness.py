@@ -1,0 +1,254 @@
+"""The SITL A/B harness's pure logic (replay/live/sitl_core.py) against scripted message streams: no SITL."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from replay.live import sitl_core as core
+
+LAT0, LON0 = -35.0, 149.0
+M_PER_DEG = math.radians(1) * core.EARTH_R_M
+
+
+class Msg:
+    """A scripted MAVLink message: type name and fields, like pymavlink's objects."""
+
+    def __init__(self, kind: str, comp: int = 1, **fields):
+        self._kind = kind
+        self._comp = comp
+        self.__dict__.update(fields)
+
+    def get_type(self):
+        return self._kind
+
+    def get_srcComponent(self):
+        return self._comp
+
+
+def gpi(t, n=0.0, e=0.0, alt=20.0):
+    lat = LAT0 + n / M_PER_DEG
+    lon = LON0 + e / (M_PER_DEG * math.cos(math.radians(LAT0)))
+    return Msg("GLOBAL_POSITION_INT", time_boot_ms=int(round(t * 1000)), lat=int(round(lat * 1e7)),
+               lon=int(round(lon * 1e7)), relative_alt=int(alt * 1000))
+
+
+def simstate(n=0.0, e=0.0):
+    lat = LAT0 + n / M_PER_DEG
+    lon = LON0 + e / (M_PER_DEG * math.cos(math.radians(LAT0)))
+    return Msg("SIMSTATE", lat=int(round(lat * 1e7)), lng=int(round(lon * 1e7)))
+
+
+def att(t):
+    return Msg("ATTITUDE", time_boot_ms=int(round(t * 1000)))
+
+
+def hb(mode, armed=True, comp=1, type_=2):
+    return Msg("HEARTBEAT", comp=comp, type=type_, autopilot=3, base_mode=128 if armed else 0, custom_mode=mode)
+
+
+def text(s, sev=2):
+    return Msg("STATUSTEXT", severity=sev, text=s)
+
+
+def scripted_flight(ekf_offset_e, deny_on=40.0, deny_off=70.0, end=100.0, dt=0.1, failsafe_at=None):
+    """Truth flies north at 5 m/s from t=0; the EKF reports truth + an east offset given as a function of t."""
+    log = core.FlightLog()
+    log.on_message(hb(core.MODE_GUIDED, armed=False))
+    t = 0.0
+    while t <= end + 1e-9:
+        log.on_message(att(t))
+        log.on_message(simstate(n=5.0 * t))
+        log.on_message(gpi(t, n=5.0 * t, e=ekf_offset_e(t)))
+        if t == pytest.approx(1.0):
+            log.on_message(hb(core.MODE_GUIDED, armed=True))
+        if failsafe_at is not None and abs(t - failsafe_at) < dt / 2:
+            log.on_message(text("EKF variance: position lost"))
+            log.on_message(text("EKF Failsafe: changed to LAND Mode"))
+            log.on_message(hb(core.MODE_LAND))
+        t = round(t + dt, 6)
+    log.marks.update(hover=5.0, square=20.0, deny_on=deny_on, deny_off=deny_off, end=end)
+    return log
+
+
+def test_truth_interpolated_to_the_ekf_times():
+    truth = [(0.0, 0.0, 0.0), (0.4, 1e-5, 0.0), (0.8, 2e-5, 2e-5)]
+    lat, lon = core.truth_at(truth, [0.2, 0.6, -1.0, 1.0])
+    assert lat[0] == pytest.approx(0.5e-5) and lon[0] == 0.0
+    assert lat[1] == pytest.approx(1.5e-5) and lon[1] == pytest.approx(1e-5)
+    assert math.isnan(lat[2]) and math.isnan(lat[3])  # outside the truth's span: no truth
+
+
+def test_no_truth_across_a_gap():
+    truth = [(0.0, 0.0, 0.0), (0.1, 0.0, 0.0), (3.0, 1e-4, 0.0), (3.1, 1e-4, 0.0)]
+    lat, _ = core.truth_at(truth, [0.05, 1.5, 3.05])
+    assert np.isfinite(lat[[0, 2]]).all() and math.isnan(lat[1])
+
+
+def test_error_of_a_moving_vehicle_is_measured_at_the_same_instant():
+    """EKF exactly on a truth flying 5 m/s: any time mismatch would show as 5 m/s x mismatch."""
+    log = scripted_flight(lambda t: 0.0)
+    t, err = core.ekf_error(log)
+    assert len(t) > 900
+    assert err.max() < 0.02  # 1e-7 deg quantisation only
+
+
+def test_simstate_takes_the_newest_boot_time():
+    log = core.FlightLog()
+    log.on_message(simstate())  # before any time: dropped
+    log.on_message(att(1.234))
+    log.on_message(simstate(n=1.0))
+    log.on_message(Msg("SIMSTATE", lat=0, lng=0, time_boot_ms=99999))  # never trusted for time
+    assert [round(x[0], 3) for x in log.truth] == [1.234, 1.234]
+    assert log.t_boot == pytest.approx(1.234)
+
+
+def test_phase_intervals_cut_at_the_denial():
+    iv = core.phase_intervals({"hover": 5.0, "square": 20.0, "deny_on": 40.0, "deny_off": 70.0, "end": 100.0})
+    assert iv == {"hover": (5.0, 20.0), "square": (20.0, 40.0), "denial": (40.0, 70.0), "recovery": (70.0, 100.0)}
+    iv = core.phase_intervals({"hover": 5.0, "deny_on": 20.0, "deny_off": 50.0, "end": 80.0})  # denied in the hover
+    assert iv == {"hover": (5.0, 20.0), "denial": (20.0, 50.0), "recovery": (50.0, 80.0)}
+    assert core.phase_intervals({"hover": 5.0, "square": 20.0, "end": 60.0}) == {"hover": (5.0, 20.0), "square": (20.0, 60.0)}
+    assert core.phase_intervals({"hover": 5.0}) == {}  # never finished: no phase
+
+
+def test_phase_stats_and_5s_marks():
+    # EKF 1 m east in hover/square, grows 0.5 m/s during the denial, back to 0.2 m after
+    def off(t):
+        if t < 40:
+            return 1.0
+        if t < 70:
+            return 1.0 + 0.5 * (t - 40)
+        return 0.2
+
+    log = scripted_flight(off)
+    r = core.analyse(core.SCENARIOS["square-deny-30"], "A", log)
+    assert r.phases["hover"][0] == pytest.approx(1.0, abs=0.02)
+    assert r.phases["square"][1] == pytest.approx(1.0, abs=0.02)
+    assert r.phases["denial"][1] == pytest.approx(15.95, abs=0.1)
+    assert r.phases["recovery"][0] == pytest.approx(0.2, abs=0.02)
+    marks = dict(r.marks_err)
+    assert sorted(marks) == [5.0 * k for k in range(13)]  # 0 .. 60 s (denial 30 s + 30 s after)
+    assert marks[10.0] == pytest.approx(6.0, abs=0.05)
+    assert marks[25.0] == pytest.approx(13.5, abs=0.05)
+    assert marks[35.0] == pytest.approx(0.2, abs=0.02)
+    assert r.armed and r.arm_time_s == pytest.approx(1.0)
+
+
+def test_failsafe_and_land_timing_after_the_denial():
+    log = scripted_flight(lambda t: 0.0, failsafe_at=48.0)
+    log.texts.insert(0, (2.0, 2, "EKF Failsafe"))  # before the denial: not this denial's failsafe
+    log.on_message(text("EKF Failsafe Cleared"))
+    r = core.analyse(core.SCENARIOS["square-deny-30"], "A", log)
+    assert r.failsafe_s == pytest.approx(8.0, abs=0.06)
+    assert r.variance_s == pytest.approx(8.0, abs=0.06)
+    assert r.land_s == pytest.approx(8.0, abs=0.06)
+    assert "EKF failsafe" in core.phase_table([r]).replace("EKF Failsafe", "EKF failsafe")
+
+
+def test_no_failsafe_is_nan_and_shown_as_dash():
+    r = core.analyse(core.SCENARIOS["square-deny-30"], "B", scripted_flight(lambda t: 0.0))
+    assert math.isnan(r.failsafe_s) and math.isnan(r.land_s)
+    assert "| — | — | — |" in core.phase_table([r])
+
+
+def test_modes_keep_changes_only_and_ignore_other_components():
+    log = core.FlightLog()
+    log.on_message(att(1.0))
+    for m in (hb(4, False), hb(4, False), hb(4, True), hb(0, False, comp=191, type_=18), hb(9, True)):
+        log.on_message(m)
+    assert [(m, a) for _t, m, a in log.modes] == [(4, False), (4, True), (9, True)]
+    assert log.mode == core.MODE_LAND and log.armed
+
+
+def test_arming_refusals_deduplicated():
+    log = core.FlightLog()
+    for s in ("PreArm: GPS 2: Bad fix", "PreArm: GPS 2: Bad fix", "Arm: GPS 2: Bad fix", "EKF3 IMU0 is using GPS"):
+        log.on_message(text(s))
+    assert core.arm_refusals(log) == ["PreArm: GPS 2: Bad fix", "Arm: GPS 2: Bad fix"]
+    r = core.analyse(core.SCENARIOS["healthy"], "B", log)
+    assert not r.armed and "refusals seen: PreArm: GPS 2: Bad fix" in core.arming_lines([r])
+
+
+def test_gps_fix_types_counted_per_instance_and_window():
+    log = core.FlightLog()
+    for t, fx in ((1.0, 3), (2.0, 3), (3.0, 2), (4.0, 0)):
+        log.on_message(att(t))
+        log.on_message(Msg("GPS2_RAW", fix_type=fx, satellites_visible=10))
+        log.on_message(Msg("GPS_RAW_INT", fix_type=3, satellites_visible=10))
+    assert core.fix_counts(log, 2) == {0: 1, 2: 1, 3: 2}
+    assert core.fix_counts(log, 2, 2.5, 10) == {0: 1, 2: 1}
+    assert core.fix_counts(log, 1) == {3: 4}
+    assert log.gps_fix(2) == 0
+
+
+def test_companion_error_against_the_time_it_claims():
+    log = scripted_flight(lambda t: 0.0)
+    recs = []
+    for k in range(0, 1000, 2):
+        t = k / 10
+        late = 0.3  # the record says it describes t; its position is truth at t - 0.3 (5 m/s -> 1.5 m)
+        m = gpi(t, n=5.0 * (t - late))
+        recs.append({"sent": True, "time_boot_us": int(t * 1e6), "lat_deg": m.lat * 1e-7, "lon_deg": m.lon * 1e-7,
+                     "fix_type": 3 if t < 50 else 2})
+    recs.append({"sent": False, "time_boot_us": 10_000_000, "lat_deg": 0.0, "lon_deg": 0.0, "fix_type": 3})
+    r = core.analyse(core.SCENARIOS["square-deny-30"], "B", log, recs)
+    assert r.own_healthy_mean == pytest.approx(1.5, abs=0.02)
+    assert r.own_err_at[10.0] == pytest.approx(1.5, abs=0.02)
+    assert r.sent_fix == {2: 250, 3: 250}
+    table = core.companion_table([r])
+    assert "3:250" in table and "1.5" in table
+
+
+def test_verdicts_compare_the_arms():
+    a = core.analyse(core.SCENARIOS["square-deny-30"], "A", scripted_flight(lambda t: 0.2, failsafe_at=50.0))
+    b = core.analyse(core.SCENARIOS["square-deny-30"], "B",
+                     scripted_flight(lambda t: 2.0 if t < 40 else 2.0 + (t - 40), failsafe_at=45.0))
+    v = "\n".join(core.ab_verdicts([a, b]))
+    assert "square: mean EKF error B/A = 10.0x" in v and "NOT met" in v
+    assert "failsafe with the companion earlier than alone (+5.0 s vs +10.0 s)" in v
+    assert "5 s marks where B > A + 0.5 m" in v
+    assert core.marks_table([a, b]).count("\n") == 3
+
+
+def test_scenarios_are_consistent():
+    for name, sc in core.SCENARIOS.items():
+        assert sc.name == name
+        if sc.denies:
+            assert sc.deny_in in ("hover", "square") and sc.recover_s > 0
+        if sc.deny_lap:
+            assert 0 < sc.deny_lap <= sc.laps
+    corners = core.square_corners(100.0)
+    assert corners[-1] == (0.0, 0.0) and len(corners) == 4
+    for d in core.DEFAULT_SCENARIOS:
+        assert d in core.SCENARIOS
+
+
+def test_best_lag_finds_a_delayed_source():
+    """An EKF that reports the truth of 0.3 s ago, on a vehicle flying 5 m/s north: tau = 0.3 s, error ~0."""
+    log = scripted_flight(lambda t: 0.0)
+    a = np.asarray(log.ekf)
+    tau, e = core.best_lag(a[:, 0], a[:, 1], a[:, 2], log.truth)
+    assert tau == pytest.approx(0.0, abs=0.011) and e < 0.02
+    delayed = [(t, LAT0 + 5.0 * (t - 0.3) / M_PER_DEG, lon) for t, _lat, lon, _alt in log.ekf]
+    d = np.asarray(delayed)
+    tau, e = core.best_lag(d[:, 0], d[:, 1], d[:, 2], log.truth)
+    assert tau == pytest.approx(0.3, abs=0.011) and e < 0.05
+    r = core.analyse(core.SCENARIOS["square-deny-30"], "A", log)
+    assert r.ekf_lag_s == pytest.approx(0.0, abs=0.011)
+    assert "EKF delay vs truth" in core.lag_table([r])
+
+
+def test_flight_log_round_trips_through_json():
+    import json
+
+    log = scripted_flight(lambda t: 0.5, failsafe_at=50.0)
+    log.on_message(Msg("GPS2_RAW", fix_type=3, satellites_visible=10))
+    log.note("lap 1")
+    back = core.FlightLog.from_dict(json.loads(json.dumps(log.to_dict()).replace("NaN", "null")))
+    a = core.analyse(core.SCENARIOS["square-deny-30"], "A", log)
+    b = core.analyse(core.SCENARIOS["square-deny-30"], "A", back)
+    assert core.phase_table([a]) == core.phase_table([b]) and core.marks_table([a]) == core.marks_table([b])
+    assert back.gps[2] == log.gps[2] and back.events == log.events
