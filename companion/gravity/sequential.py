@@ -1,0 +1,767 @@
+"""Sequential gravity map matching for slow vehicles: every gravimeter reading updates the filter.
+
+The filter estimates the horizontal error of a reference navigation solution (a free INS, or the navigator's
+prediction without gravity aiding): ``error = reference - truth``. Its corrected position is
+``reference - error``. Readings are scalar anomalies (mGal) already Eotvos-corrected with the reference velocity
+(Gao 2022 eqs. 5-6).
+
+Two back-ends on the same front-end (time handling, map tiles, divergence and signal checks, outputs):
+
+``mpf`` (default) -- marginalised (Rao-Blackwellised) particle filter after Schoen, Gustafsson & Nordlund 2005 in the
+    shared-covariance form of MIT MagNav.jl's ``mpf``: the two horizontal position errors are particles (the map is
+    the non-linear part); the 13 linear states ride in one Kalman filter per particle that shares its covariance
+    ``Pl`` (the model is linear and H is common to all particles, so every particle's Pl is the same):
+        xl = [dsN, dsE, dvN, dvE, psiN, psiE, psiD, bgx, bgy, bgz, bax, bay, b_map]
+    the dynamic part of the position error (what the Schuler loop feeds back; an initial offset does not excite it),
+    velocity error, psi-angle attitude error, body-frame gyro and accelerometer biases (random constants), and the
+    map-minus-sensor misfit ``b_map`` as a first-order Gauss-Markov process in distance sailed (correlation length
+    ``MapErrorSpec.corr_length_m``). The measurement is
+        y = map(reference - dr) - J dv + b_map + v,     v ~ N(0, sigma_mgal^2)
+    with J the Eotvos sensitivity (mGal per m/s, Gao eq. 5 differentiated): the correction used the reference
+    velocity, so a velocity error leaves -J dv in the reading. Measurement update: Schoen eqs. 22, 25a (weights from
+    the predictive variance V = H Pl H' + R); time update: eqs. 23-24, 25b.
+``pmf`` -- point-mass filter on a moving 2-D grid over the position error, with the same map-misfit state as a
+    scalar Kalman filter per grid point; the INS error enters only as a random walk whose variance follows the growth
+    of the INS-alone position covariance (the grid has no velocity states). Kept to compare against (see
+    replay/results/gravity_marine.md).
+
+INS error model (both back-ends, and the INS-alone covariance the filter carries for re-initialisation): the
+psi-angle model of Titterton & Weston ch. 12 as in replay.gravity.sim.simulate_ins --
+    dr' = dv;  dv' = f x psi + C_b^n ba - (g/R) dr  (Schuler);  psi' = -w_in x psi - C_b^n bg,
+with white velocity (VRW) and angle (ARW) noise; yaw-only body-to-nav rotation (a ship is level). The Schuler
+term bounds the accelerometer-bias error; gyro bias makes the position error grow ~R*bg*t.
+
+Divergence: the windowed mean of the normalised innovation squared (mixture predictive), repeated "no particle
+explains the reading" events, a spread beyond the INS-alone spread, or an estimate implausible under the INS-alone
+covariance trigger a re-initialisation around the reference with the INS-alone (or the navigator's) covariance.
+No signal: the map's variation along the estimated track over the last ``signal_window_m`` is compared with the
+reading noise; below ``min_signal_ratio`` the output says ``no_signal`` (its covariance keeps growing with the INS).
+
+Pure numpy, no wall clock (CPU time per reading is measured with time.process_time for reporting only).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from companion.geodesy import EARTH_RATE_RADPS, WGS84_A_M
+from companion.matching.eotvos import MPS_PER_KNOT
+from companion.matching.maps import LocalGravityMap
+from companion.matching.particle import FieldSampler
+
+G0_MPS2 = 9.80665
+UG_MPS2 = 1e-6 * G0_MPS2
+DEGPH_RADPS = np.radians(1.0) / 3600.0
+
+# state layout: xn = [drN, drE] (total position error); xl = [dsN, dsE, dvN, dvE, psiN, psiE, psiD, bgx, bgy, bgz,
+# bax, bay, b_map] with ds the part of the position error that the INS dynamics made (the Schuler feedback acts on
+# it; an initial position offset is psi-angle consistent and does not excite the loop, as in simulate_ins)
+N_NL = 2
+N_LIN = 13
+N_ALL = N_NL + N_LIN
+IS, IV, IPSI, IBG, IBA, IB = 0, 2, 4, 7, 10, 12  # offsets inside xl
+
+Status = Literal["anchored", "ok", "no_signal", "multimodal", "reinit", "off_map"]
+
+
+# ---- configuration -----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class InsErrorSpec:
+    """1-sigma INS error sources the filter assumes (marine grade: Liu 2019 sec. 4.1 -- 0.01 deg/h gyro drift,
+    100 ug accelerometer bias, 0.1' level and 0.5' heading initial errors)."""
+
+    gyro_bias_degph: float = 0.01
+    accel_bias_ug: float = 100.0
+    gyro_arw_deg_rthr: float = 0.001
+    accel_vrw_ug_rthz: float = 10.0
+    init_vel_sigma_mps: float = 0.05
+    init_tilt_sigma_rad: float = float(np.radians(0.1 / 60))
+    init_heading_sigma_rad: float = float(np.radians(0.5 / 60))
+
+
+@dataclass(frozen=True)
+class MapErrorSpec:
+    """Map-minus-sensor misfit as a first-order Gauss-Markov process in distance. Defaults from the real
+    ship-minus-satellite residuals (GMT example 3, MANIFEST sec. 4): std 5.7 mGal, lag correlation 0.90 at
+    3.3 km, 0.51 at 16.5 km, 0.16 at 33 km -> correlation length ~25 km."""
+
+    sigma_mgal: float = 5.7
+    corr_length_m: float = 25_000.0
+    min_speed_mps: float = 0.5  # below this the misfit is taken as constant in time over min_speed * dt
+    # short-scale part: the residual series' 330 m increments (std 0.91 mGal) leave at most ~0.6 mGal of
+    # uncorrelated misfit at that spacing; readings closer than white_corr_length_m share it
+    white_sigma_mgal: float = 0.6
+    white_corr_length_m: float = 330.0
+
+
+@dataclass(frozen=True)
+class SeqGravConfig:
+    method: Literal["mpf", "pmf"] = "mpf"
+    n_particles: int = 1000  # mpf
+    pmf_grid: int = 40  # pmf: grid points per axis
+    pmf_span_sigma: float = 5.0  # pmf grid half-width in (largest) standard deviations
+    resample_frac: float = 0.5  # resample when N_eff < resample_frac * N
+    roughen: float = 0.1  # position kernel bandwidth (fraction of the population std) after resampling
+    pos_noise_m_rts: float = 0.05  # direct position random walk (numerical floor), m / sqrt(s)
+    # readings are not independent at 1 Hz: a marine gravimeter's output is filtered (time constant ~ tens of s)
+    # and the short-scale misfit is shared over white_corr_length_m; each reading's white variance is inflated by
+    # n = max(1, noise_corr_s / dt, white_corr_length_m / (speed dt)) so n correlated readings count as one
+    noise_corr_s: float = 30.0
+    init_pos_sigma_m: float = 10.0  # prior 1-sigma per axis when the caller gives no covariance
+    ins: InsErrorSpec = field(default_factory=InsErrorSpec)
+    map_error: MapErrorSpec = field(default_factory=MapErrorSpec)
+    max_step_s: float = 10.0  # longer gaps are propagated in sub-steps
+    # map tiles (regular NE resampling of the map around the vehicle)
+    tile_cell_m: float = 500.0
+    tile_half_m: float = 60_000.0
+    tile_margin_m: float = 15_000.0
+    # anchored mode: while the caller's reference is at least this good, the position is pinned to it
+    anchor_h_sigma_m: float = 50.0
+    # divergence detection and re-initialisation
+    nis_window_s: float = 900.0
+    nis_max: float = 6.0
+    lost_loglik_sigma: float = 6.0  # "no particle explains the reading": best residual beyond this many sigma
+    lost_count_max: int = 30  # ... this many times inside nis_window_s
+    spread_max_factor: float = 2.0  # filter spread above this x the INS-alone spread (and 1 km)
+    implausible_chi2: float = 30.0  # estimated error's Mahalanobis^2 under the INS-alone covariance
+    reinit_widen: float = 1.0  # prior covariance scale at re-initialisation
+    reinit_holdoff_s: float = 600.0
+    # signal / multimodality indicators
+    signal_window_m: float = 6_000.0
+    min_signal_ratio: float = 1.5
+    multimodal_bc: float = 0.6  # bimodality coefficient along the major axis
+    lat_deg_if_local: float = 45.0  # Eotvos latitude for a map without a geodetic frame
+
+
+@dataclass(frozen=True)
+class SeqGravEstimate:
+    """Output for one reading. Positions in metres N/E of the map's local frame."""
+
+    t_s: float
+    pos_ne_m: np.ndarray  # corrected position: reference - error
+    err_ne_m: np.ndarray  # estimated reference error (reference - truth)
+    cov_ne_m2: np.ndarray  # (2, 2) covariance of the filter's own distribution
+    h_acc_m: float  # sqrt(trace cov), the GPS_INPUT horiz_accuracy convention
+    lat_deg: float  # NaN for a map without a geodetic frame
+    lon_deg: float
+    status: Status
+    n_eff: float
+    bimodality: float  # bimodality coefficient of the distribution along its major axis (>0.555: two modes)
+    signal_ratio: float  # along-track map std over the signal window / reading noise
+    nis_mean: float  # windowed mean normalised innovation squared (1 when consistent)
+    reinit_count: int
+    ins_h_sigma_m: float  # INS-alone h-sigma the filter carries (prior for re-initialisation)
+    map_bias_mgal: float  # estimated map-minus-sensor misfit
+    cpu_s: float  # process time spent on this reading (not part of the filter's state)
+
+    @property
+    def usable(self) -> bool:
+        """A fix the navigator may fuse: tracking with signal, unimodal, not just re-initialised."""
+        return self.status == "ok"
+
+    def sigma_ne_m(self) -> tuple[float, float]:
+        return float(np.sqrt(self.cov_ne_m2[0, 0])), float(np.sqrt(self.cov_ne_m2[1, 1]))
+
+
+# ---- map tiles -----------------------------------------------------------------------------------------
+class MapTile:
+    """Regular NE resampling of a LocalGravityMap around a centre: anomaly and its N/E gradient (mGal/m)."""
+
+    def __init__(self, lmap: LocalGravityMap, centre_ne_m, half_m: float, cell_m: float):
+        c = np.asarray(centre_ne_m, float)
+        g, n_ax, e_ax = lmap.regular_ne(cell_m, (c[0] - half_m, c[0] + half_m), (c[1] - half_m, c[1] + half_m))
+        gn, ge = np.gradient(g, cell_m, cell_m)
+        self.sampler = FieldSampler(n_ax, e_ax, np.stack([g, gn, ge], axis=-1))
+        self.lo = np.array([n_ax[0], e_ax[0]])
+        self.hi = np.array([n_ax[-1], e_ax[-1]])
+        self.centre = c
+
+    def covers(self, pts_ne_m: np.ndarray, margin_m: float) -> bool:
+        lo, hi = pts_ne_m.min(axis=0), pts_ne_m.max(axis=0)
+        return bool(np.all(lo >= self.lo + margin_m) and np.all(hi <= self.hi - margin_m))
+
+    def __call__(self, north_m, east_m) -> np.ndarray:
+        return self.sampler(north_m, east_m)  # (..., 3): g, dg/dN, dg/dE
+
+
+# ---- INS error model -----------------------------------------------------------------------------------
+def eotvos_jacobian_mgal_per_mps(vel_ne_mps, lat_deg: float) -> np.ndarray:
+    """dE/d(vN, vE) of Gao eq. 5, E = 7.5 vE/k cos(lat) + 0.004 (vN^2 + vE^2)/k^2 (k = m/s per knot)."""
+    vn, ve = float(vel_ne_mps[0]), float(vel_ne_mps[1])
+    k = MPS_PER_KNOT
+    return np.array([0.008 * vn / k**2, 7.5 * np.cos(np.radians(lat_deg)) / k + 0.008 * ve / k**2])
+
+
+def error_dynamics(lat_rad: float, vel_ne_mps, acc_ne_mps2, heading_rad: float, tau_b_s: float,
+                   R: float = WGS84_A_M) -> np.ndarray:
+    """Continuous A for [drN, drE | dsN, dsE, dvN, dvE, psiN, psiE, psiD, bgx, bgy, bgz, bax, bay, b_map]."""
+    vN, vE = float(vel_ne_mps[0]), float(vel_ne_mps[1])
+    aN, aE = float(acc_ne_mps2[0]), float(acc_ne_mps2[1])
+    c, s = np.cos(heading_rad), np.sin(heading_rad)
+    wx = EARTH_RATE_RADPS * np.cos(lat_rad) + vE / R
+    wy = -vN / R
+    wz = -EARTH_RATE_RADPS * np.sin(lat_rad) - vE * np.tan(lat_rad) / R
+    g = G0_MPS2
+    A = np.zeros((N_ALL, N_ALL))
+    rN, rE, sN, sE, vn, ve, pn, pe, pd, gx, gy, gz, ax, ay, b = range(N_ALL)
+    A[rN, vn] = A[rE, ve] = A[sN, vn] = A[sE, ve] = 1.0
+    # dv' = f x psi + C ba - (g/R) ds, f = (aN, aE, -g)
+    A[vn, sN] = A[ve, sE] = -g / R
+    A[vn, pe], A[vn, pd], A[vn, ax], A[vn, ay] = g, aE, c, -s
+    A[ve, pn], A[ve, pd], A[ve, ax], A[ve, ay] = -g, -aN, s, c
+    # psi' = -w x psi - C bg
+    A[pn, pe], A[pn, pd], A[pn, gx], A[pn, gy] = wz, -wy, -c, s
+    A[pe, pn], A[pe, pd], A[pe, gx], A[pe, gy] = -wz, wx, -s, -c
+    A[pd, pn], A[pd, pe], A[pd, gz] = wy, -wx, -1.0
+    A[b, b] = -1.0 / tau_b_s
+    return A
+
+
+def continuous_noise(spec: InsErrorSpec, mspec: MapErrorSpec, tau_b_s: float) -> np.ndarray:
+    q = np.zeros(N_ALL)
+    q[N_NL + IV:N_NL + IV + 2] = (spec.accel_vrw_ug_rthz * UG_MPS2) ** 2
+    q[N_NL + IPSI:N_NL + IPSI + 3] = (np.radians(spec.gyro_arw_deg_rthr) / 60.0) ** 2
+    q[N_NL + IB] = 2.0 * mspec.sigma_mgal**2 / tau_b_s
+    return np.diag(q)
+
+
+def discretise(A: np.ndarray, Qc: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Phi = exp(A dt) by a 4th-order Taylor series (|A| dt << 1 for dt <= max_step_s); trapezoidal Qd."""
+    Ad = A * dt_s
+    Ad2 = Ad @ Ad
+    Phi = np.eye(A.shape[0]) + Ad + Ad2 / 2.0 + Ad2 @ Ad / 6.0 + Ad2 @ Ad2 / 24.0
+    Qd = 0.5 * (Phi @ Qc @ Phi.T + Qc) * dt_s
+    return Phi, 0.5 * (Qd + Qd.T)
+
+
+def prior_covariance(cfg: SeqGravConfig, pos_cov_ne_m2: np.ndarray) -> np.ndarray:
+    s = cfg.ins
+    d = np.zeros(N_ALL)
+    o = N_NL
+    d[o + IV:o + IV + 2] = s.init_vel_sigma_mps**2
+    d[o + IPSI:o + IPSI + 2] = s.init_tilt_sigma_rad**2
+    d[o + IPSI + 2] = s.init_heading_sigma_rad**2
+    d[o + IBG:o + IBG + 3] = (s.gyro_bias_degph * DEGPH_RADPS) ** 2
+    d[o + IBA:o + IBA + 2] = (s.accel_bias_ug * UG_MPS2) ** 2
+    d[o + IB] = cfg.map_error.sigma_mgal**2
+    P = np.diag(d)
+    P[:2, :2] = pos_cov_ne_m2
+    return P
+
+
+def _chol_psd(P: np.ndarray) -> np.ndarray:
+    P = 0.5 * (P + P.T)
+    jitter = 1e-12 * max(float(np.trace(P)) / P.shape[0], 1e-30)
+    for _ in range(8):
+        try:
+            return np.linalg.cholesky(P + jitter * np.eye(P.shape[0]))
+        except np.linalg.LinAlgError:
+            jitter *= 100.0
+    w, V = np.linalg.eigh(P)
+    return V * np.sqrt(np.maximum(w, 0.0))
+
+
+def _weighted_moments(x: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Mean, covariance and the bimodality coefficient (skew^2 + 1) / kurtosis along the major axis."""
+    m = w @ x
+    d = x - m
+    cov = (w[:, None] * d).T @ d
+    evals, evecs = np.linalg.eigh(cov)
+    p = d @ evecs[:, -1]
+    m2 = float(w @ p**2)
+    if m2 <= 0:
+        return m, cov, 0.0
+    skew = float(w @ p**3) / m2**1.5
+    kurt = float(w @ p**4) / m2**2
+    return m, cov, (skew**2 + 1.0) / kurt
+
+
+# ---- back-ends -----------------------------------------------------------------------------------------
+class _Mpf:
+    """Marginalised particle filter with a covariance shared by all particles' Kalman filters."""
+
+    def __init__(self, cfg: SeqGravConfig, rng: np.random.Generator):
+        self.cfg, self.rng = cfg, rng
+        self.n = int(cfg.n_particles)
+
+    def init(self, P: np.ndarray, mean_xn=None, b_mean=None, b_var=None) -> None:
+        """Particles from the joint Gaussian N(0, P): xn ~ N(0, Pnn), xl | xn its conditional mean, Pl the
+        conditional covariance; optionally keep a map-misfit estimate (mean, variance)."""
+        Pnn, Pln, Pll = P[:N_NL, :N_NL], P[N_NL:, :N_NL], P[N_NL:, N_NL:]
+        xn = self.rng.standard_normal((self.n, N_NL)) @ _chol_psd(Pnn).T
+        G = Pln @ np.linalg.inv(Pnn)
+        self.xl = xn @ G.T
+        self.Pl = Pll - G @ Pln.T
+        self.xn = xn + (0.0 if mean_xn is None else np.asarray(mean_xn))
+        if b_mean is not None:
+            self.xl[:, IB] = b_mean
+            self.Pl[IB, :] = 0.0
+            self.Pl[:, IB] = 0.0
+            self.Pl[IB, IB] = b_var
+        self.w = np.full(self.n, 1.0 / self.n)
+
+    def predict(self, Phi: np.ndarray, Qd: np.ndarray, qn: float) -> None:
+        """Schoen 2005 eqs. 23-24, 25b with Qln = 0 (position noise enters through dv)."""
+        Ann, Anl = Phi[:N_NL, :N_NL], Phi[:N_NL, N_NL:]
+        Aln, All = Phi[N_NL:, :N_NL], Phi[N_NL:, N_NL:]
+        Ql = Qd[N_NL:, N_NL:]
+        Pl = self.Pl
+        M = Anl @ Pl @ Anl.T + qn * np.eye(N_NL)  # eq. 23c
+        L = All @ Pl @ Anl.T @ np.linalg.inv(M)  # eq. 23d
+        self.Pl = All @ Pl @ All.T + Ql - L @ M @ L.T  # eq. 23b
+        self.Pl = 0.5 * (self.Pl + self.Pl.T)
+        xn_old, xl_old = self.xn, self.xl
+        drift = xn_old @ Ann.T + xl_old @ Anl.T
+        xn_new = drift + self.rng.standard_normal((self.n, N_NL)) @ _chol_psd(M).T  # eq. 25b
+        z = xn_new - xn_old @ Ann.T  # eq. 24a
+        self.xl = xn_old @ Aln.T + xl_old @ All.T + (z - xl_old @ Anl.T) @ L.T  # eq. 23a
+        self.xn = xn_new
+
+    def positions(self) -> np.ndarray:
+        return self.xn
+
+    def update(self, tile: MapTile, ref_ne: np.ndarray, y: float, H: np.ndarray, R: float, R_raw: float):
+        """Eqs. 22, 25a with the inflated white variance R. Returns (NIS with the per-reading variance R_raw, best
+        |residual| in sigma, mean map value, mean gradient) or None when every particle is off the map."""
+        f = tile(ref_ne[0] - self.xn[:, 0], ref_ne[1] - self.xn[:, 1])
+        h = f[:, 0]
+        ok = np.isfinite(h)
+        if not ok.any():
+            return None
+        HPH = float(H @ self.Pl @ H)
+        V = HPH + R
+        yhat_i = np.where(ok, h, 0.0) + self.xl @ H
+        e = y - yhat_i
+        w0 = np.where(ok, self.w, 0.0)
+        w0 = w0 / w0.sum()
+        yhat = float(w0 @ yhat_i)
+        nis = (y - yhat) ** 2 / (float(w0 @ (yhat_i - yhat) ** 2) + HPH + R_raw)
+        r2 = np.where(ok, e * e / V, np.inf)
+        best = float(np.sqrt(r2.min()))
+        lw = np.log(np.maximum(self.w, 1e-300)) - 0.5 * r2
+        lw -= lw.max()
+        w = np.exp(lw)
+        self.w = w / w.sum()
+        K = self.Pl @ H / V  # eq. 22d
+        self.xl = self.xl + np.outer(np.where(ok, e, 0.0), K)  # eq. 22a
+        self.Pl = self.Pl - np.outer(K, K) * V  # eq. 22b
+        self.Pl = 0.5 * (self.Pl + self.Pl.T)
+        hm = float(self.w @ np.where(ok, h, 0.0))
+        grad = self.w @ np.where(ok[:, None], f[:, 1:], 0.0)
+        return nis, best, hm, grad
+
+    def moments(self):
+        m, cov, bc = _weighted_moments(self.xn, self.w)
+        return m, cov, bc, 1.0 / float(np.sum(self.w**2)), float(self.w @ self.xl[:, IB]), float(self.Pl[IB, IB])
+
+    def resample_if_needed(self) -> bool:
+        n_eff = 1.0 / float(np.sum(self.w**2))
+        if n_eff >= self.cfg.resample_frac * self.n:
+            return False
+        u = (self.rng.random() + np.arange(self.n)) / self.n  # systematic
+        idx = np.minimum(np.searchsorted(np.cumsum(self.w), u), self.n - 1)
+        xn, xl = self.xn[idx], self.xl[idx]
+        if self.cfg.roughen > 0:  # regularisation of the positions only (velocity diversity comes from eq. 23a)
+            C = np.cov(xn, rowvar=False)
+            xn = xn + self.rng.standard_normal(xn.shape) @ _chol_psd(C).T * self.cfg.roughen
+        self.xn, self.xl = xn, xl
+        self.w = np.full(self.n, 1.0 / self.n)
+        return True
+
+    def shift(self, delta_ne_m) -> None:
+        self.xn = self.xn - np.asarray(delta_ne_m, float)
+
+
+class _Pmf:
+    """Point-mass filter on a moving n x n grid over the position error, map misfit per point (shared variance)."""
+
+    def __init__(self, cfg: SeqGravConfig, rng: np.random.Generator):
+        self.cfg, self.rng = cfg, rng
+        self.k = int(cfg.pmf_grid)
+        self.q_acc = np.zeros((2, 2))  # position process covariance not yet convolved
+
+    def _grid(self, centre, spacing):
+        ax = (np.arange(self.k) - 0.5 * (self.k - 1)) * spacing
+        self.centre = np.asarray(centre, float).copy()
+        self.spacing = float(spacing)
+        self.axis = ax
+        N, E = np.meshgrid(ax + centre[0], ax + centre[1], indexing="ij")
+        self.pts = np.column_stack([N.ravel(), E.ravel()])
+
+    def _spacing_for(self, cov):
+        return max(2.0 * self.cfg.pmf_span_sigma * float(np.sqrt(np.max(np.linalg.eigvalsh(cov)))) / (self.k - 1), 1.0)
+
+    def init(self, P: np.ndarray, mean_xn=None, b_mean=None, b_var=None) -> None:
+        c = np.zeros(2) if mean_xn is None else np.asarray(mean_xn, float)
+        cov = P[:2, :2]
+        self._grid(c, self._spacing_for(cov))
+        d = self.pts - c
+        iC = np.linalg.inv(cov)
+        lw = -0.5 * np.einsum("ij,jk,ik->i", d, iC, d)
+        w = np.exp(lw - lw.max())
+        self.w = w / w.sum()
+        self.b = np.full(self.pts.shape[0], 0.0 if b_mean is None else float(b_mean))
+        self.Pb = float(P[N_NL + IB, N_NL + IB] if b_var is None else b_var)
+        self.q_acc = np.zeros((2, 2))
+
+    def predict(self, Phi, Qd, qn, dP_pos=None, phi_b=1.0, q_b=0.0) -> None:
+        self.b *= phi_b
+        self.Pb = phi_b**2 * self.Pb + q_b
+        if dP_pos is not None:
+            self.q_acc = self.q_acc + dP_pos
+        self.q_acc = self.q_acc + qn * np.eye(2)
+        # convolve once the accumulated process noise is a useful fraction of the spacing
+        if max(self.q_acc[0, 0], self.q_acc[1, 1]) >= (0.25 * self.spacing) ** 2:
+            self._convolve(self.q_acc)
+            self.q_acc = np.zeros((2, 2))
+
+    def _kernel(self, var):
+        sig = np.sqrt(max(var, 0.0)) / self.spacing
+        i = np.arange(self.k)
+        if sig < 0.5:  # variance-preserving 3-tap kernel
+            a = 0.5 * sig**2
+            K = np.eye(self.k) * (1 - 2 * a) + np.eye(self.k, k=1) * a + np.eye(self.k, k=-1) * a
+        else:
+            K = np.exp(-0.5 * ((i[:, None] - i[None, :]) / sig) ** 2)
+        return K / K.sum(axis=0, keepdims=True)
+
+    def _convolve(self, Q):
+        Kn, Ke = self._kernel(Q[0, 0]), self._kernel(Q[1, 1])  # separable (cross term dropped)
+        W = self.w.reshape(self.k, self.k)
+        WB = (self.w * self.b).reshape(self.k, self.k)
+        W2 = Kn @ W @ Ke.T
+        WB2 = Kn @ WB @ Ke.T
+        self.b = np.where(W2 > 1e-300, WB2 / np.maximum(W2, 1e-300), 0.0).ravel()
+        self.w = W2.ravel() / W2.sum()
+
+    def positions(self) -> np.ndarray:
+        return self.pts
+
+    def update(self, tile, ref_ne, y, H, R, R_raw):
+        f = tile(ref_ne[0] - self.pts[:, 0], ref_ne[1] - self.pts[:, 1])
+        h = f[:, 0]
+        ok = np.isfinite(h)
+        if not ok.any():
+            return None
+        V = self.Pb + R
+        yhat_i = np.where(ok, h, 0.0) + self.b
+        e = y - yhat_i
+        w0 = np.where(ok, self.w, 0.0)
+        w0 = w0 / max(w0.sum(), 1e-300)
+        yhat = float(w0 @ yhat_i)
+        nis = (y - yhat) ** 2 / (float(w0 @ (yhat_i - yhat) ** 2) + self.Pb + R_raw)
+        r2 = np.where(ok, e * e / V, np.inf)
+        best = float(np.sqrt(r2[self.w > 0].min())) if np.any(self.w > 0) else np.inf
+        lw = np.log(np.maximum(self.w, 1e-300)) - 0.5 * r2
+        w = np.exp(lw - lw.max())
+        self.w = w / w.sum()
+        K = self.Pb / V
+        self.b = self.b + K * np.where(ok, e, 0.0)
+        self.Pb = self.Pb * (1 - K)
+        hm = float(self.w @ np.where(ok, h, 0.0))
+        grad = self.w @ np.where(ok[:, None], f[:, 1:], 0.0)
+        return nis, best, hm, grad
+
+    def moments(self):
+        m, cov, bc = _weighted_moments(self.pts, self.w)
+        cov = cov + np.eye(2) * self.spacing**2 / 12.0 + self.q_acc  # cell quantisation, pending process noise
+        return m, cov, bc, 1.0 / float(np.sum(self.w**2)), float(self.w @ self.b), self.Pb
+
+    def resample_if_needed(self) -> bool:
+        """Re-grid when the distribution moved or its spread changed by more than 30 %."""
+        m, cov, _ = _weighted_moments(self.pts, self.w)
+        cov = cov + np.eye(2) * self.spacing**2 / 12.0
+        want = self._spacing_for(cov)
+        if abs(np.log(want / self.spacing)) < np.log(1.3) and np.all(np.abs(m - self.centre) < 0.15 * self.k * self.spacing):
+            return False
+        old_axis_n, old_axis_e = self.axis + self.centre[0], self.axis + self.centre[1]
+        W = self.w.reshape(self.k, self.k) / self.spacing**2  # density
+        B = self.b.reshape(self.k, self.k)
+        self._grid(m, want)
+        from companion.matching.maps import bilinear
+
+        dens = np.nan_to_num(bilinear(old_axis_e, old_axis_n, W, self.pts[:, 1], self.pts[:, 0]), nan=0.0)
+        bb = bilinear(old_axis_e, old_axis_n, B, self.pts[:, 1], self.pts[:, 0])
+        if dens.sum() <= 0:
+            dens = np.ones_like(dens)
+        self.w = dens / dens.sum()
+        self.b = np.where(np.isfinite(bb), bb, float(np.nansum(B * W) / max(np.sum(W), 1e-300)))
+        return True
+
+    def shift(self, delta_ne_m) -> None:
+        d = np.asarray(delta_ne_m, float)
+        self.pts = self.pts - d
+        self.centre = self.centre - d
+
+
+# ---- the filter ----------------------------------------------------------------------------------------
+class SequentialGravityFilter:
+    """Streaming sequential map matcher. ``feed`` one reading at a time, in time order; see the module doc."""
+
+    def __init__(self, lmap: LocalGravityMap, cfg: SeqGravConfig | None = None,
+                 rng: np.random.Generator | int = 0):
+        self.lmap = lmap
+        self.cfg = cfg or SeqGravConfig()
+        self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        self.be = _Mpf(self.cfg, self.rng) if self.cfg.method == "mpf" else _Pmf(self.cfg, self.rng)
+        self.t_s: float | None = None
+        self.tile: MapTile | None = None
+        self.P_ins: np.ndarray | None = None
+        self._last = None  # (ref_pos, ref_vel, heading, lat) of the previous reading
+        self._nis = deque()  # (t, nis)
+        self._lost = deque()  # t of readings no particle explained
+        self._sig = deque()  # (distance, map value at the estimate)
+        self._dist_m = 0.0
+        self._holdoff_until = -np.inf
+        self.reinit_count = 0
+        self._anchored = False
+
+    # -- helpers -----------------------------------------------------------------------------------------
+    def _lat(self, north_m: float, lat_deg) -> float:
+        if lat_deg is not None:
+            return float(lat_deg)
+        if self.lmap.frame is None:
+            return self.cfg.lat_deg_if_local
+        return float(self.lmap.lat_deg_at(north_m))
+
+    def _tau_b(self, speed_mps: float) -> float:
+        me = self.cfg.map_error
+        return me.corr_length_m / max(speed_mps, me.min_speed_mps)
+
+    def _n_corr(self, speed_mps: float, dt_s: float) -> float:
+        """Readings sharing one white error sample (see SeqGravConfig.noise_corr_s)."""
+        L = self.cfg.map_error.white_corr_length_m
+        return max(1.0, self.cfg.noise_corr_s / dt_s, L / max(speed_mps * dt_s, 1e-3))
+
+    def _ensure_tile(self, ref_ne, est_err=None) -> None:
+        pts = ref_ne - self.be.positions()
+        if self.tile is None or not self.tile.covers(pts, self.cfg.tile_margin_m):
+            centre = ref_ne - (np.zeros(2) if est_err is None else est_err)
+            self.tile = MapTile(self.lmap, np.round(centre, -3), self.cfg.tile_half_m, self.cfg.tile_cell_m)
+
+    def _prior_pos_cov(self, ref_cov) -> np.ndarray:
+        if ref_cov is not None:
+            return np.asarray(ref_cov, float).reshape(2, 2)
+        return np.eye(2) * self.cfg.init_pos_sigma_m**2
+
+    def _reset_windows(self) -> None:
+        self._nis.clear()
+        self._lost.clear()
+
+    # -- public ------------------------------------------------------------------------------------------
+    def feed(self, t_s: float, g_mgal: float, ref_pos_ne_m, ref_vel_ne_mps, sigma_mgal: float, *,
+             ref_cov_ne_m2=None, heading_rad: float | None = None, lat_deg: float | None = None) -> SeqGravEstimate | None:
+        """One reading. ``ref_*`` is the reference solution at t_s whose error is estimated; ``ref_cov_ne_m2`` the
+        navigator's own 2x2 covariance of it (optional; at least as good as ``anchor_h_sigma_m`` pins the filter to
+        the reference, e.g. with GNSS). Returns None for a reading that cannot be used (non-finite, not after the
+        previous one)."""
+        c0 = time.process_time()
+        cfg = self.cfg
+        ref = np.asarray(ref_pos_ne_m, float).reshape(2)
+        vel = np.asarray(ref_vel_ne_mps, float).reshape(2)
+        if not (np.isfinite(t_s) and np.isfinite(g_mgal) and np.all(np.isfinite(ref)) and np.all(np.isfinite(vel))
+                and np.isfinite(sigma_mgal) and sigma_mgal > 0):
+            return None
+        if self.t_s is not None and t_s <= self.t_s:
+            return None
+        speed = float(np.hypot(*vel))
+        if heading_rad is None:
+            heading_rad = float(np.arctan2(vel[1], vel[0])) if speed > 0.5 or self._last is None else self._last[2]
+        lat = self._lat(ref[0], lat_deg)
+        pos_cov = self._prior_pos_cov(ref_cov_ne_m2)
+        anchored = ref_cov_ne_m2 is not None and np.sqrt(np.trace(pos_cov)) <= cfg.anchor_h_sigma_m
+        status: Status = "ok"
+        if self.t_s is None:  # first reading: prior around the reference
+            self.P_ins = prior_covariance(cfg, pos_cov)
+            self.be.init(self.P_ins)
+        else:
+            self._propagate(float(t_s), ref, vel, speed)
+        if anchored:
+            self._anchor(pos_cov)
+            status = "anchored"
+        elif self._anchored:
+            self._anchored = False
+            self._reset_windows()
+        self._anchored = anchored
+        dt_s = 1.0 if self.t_s is None else float(t_s) - self.t_s
+        self._dist_m += 0.0 if self._last is None else float(np.hypot(*(ref - self._last[0])))
+        self._last = (ref, vel, heading_rad, lat)
+        self.t_s = float(t_s)
+
+        H = np.zeros(N_LIN)
+        H[IV:IV + 2] = -eotvos_jacobian_mgal_per_mps(vel, lat)
+        H[IB] = 1.0
+        m_prev = self.be.moments()[0]
+        self._ensure_tile(ref, m_prev)
+        r_raw = float(sigma_mgal) ** 2 + cfg.map_error.white_sigma_mgal**2
+        res = self.be.update(self.tile, ref, float(g_mgal), H, r_raw * self._n_corr(speed, dt_s), r_raw)
+        m, cov, bc, n_eff, b_mean, b_var = self.be.moments()
+        if res is None:
+            status = "off_map"
+            nis_mean, sig_ratio = float("nan"), 0.0
+        else:
+            nis, best, hm, _grad = res
+            self._nis.append((self.t_s, nis))
+            if best > cfg.lost_loglik_sigma:
+                self._lost.append(self.t_s)
+            while self._nis and self._nis[0][0] < self.t_s - cfg.nis_window_s:
+                self._nis.popleft()
+            while self._lost and self._lost[0] < self.t_s - cfg.nis_window_s:
+                self._lost.popleft()
+            nis_mean = float(np.mean([v for _, v in self._nis]))
+            self._sig.append((self._dist_m, hm))
+            while self._sig and self._sig[0][0] < self._dist_m - cfg.signal_window_m:
+                self._sig.popleft()
+            span = self._sig[-1][0] - self._sig[0][0]
+            vals = np.array([v for _, v in self._sig])
+            sig_ratio = float(np.std(vals)) / float(sigma_mgal) if span >= 0.5 * cfg.signal_window_m else 0.0
+            if not anchored:
+                if self._diverged(m, cov, nis_mean):
+                    self._reinit(ref_cov_ne_m2, b_mean, b_var)
+                    m, cov, bc, n_eff, b_mean, b_var = self.be.moments()
+                    status = "reinit"
+                elif sig_ratio < cfg.min_signal_ratio:
+                    status = "no_signal"
+                elif bc > cfg.multimodal_bc:
+                    status = "multimodal"
+        if not anchored:
+            self.be.resample_if_needed()
+        pos = ref - m
+        if self.lmap.frame is not None:
+            lon, lat_o = self.lmap.ne_to_xy(pos[0], pos[1])
+            lat_o, lon = float(lat_o), float(lon)
+        else:
+            lat_o = lon = float("nan")
+        ins_h = float(np.sqrt(self.P_ins[0, 0] + self.P_ins[1, 1]))
+        return SeqGravEstimate(self.t_s, pos, m.copy(), cov, float(np.sqrt(np.trace(cov))), lat_o, lon, status, n_eff,
+                               float(bc), sig_ratio, nis_mean, self.reinit_count, ins_h, b_mean,
+                               time.process_time() - c0)
+
+    def apply_correction(self, delta_ne_m) -> None:
+        """The reference was moved by delta_ne_m (closed-loop reset of the INS): its error moves with it."""
+        self.be.shift(-np.asarray(delta_ne_m, float))
+
+    def ins_alone_cov_ne_m2(self) -> np.ndarray:
+        return self.P_ins[:2, :2].copy()
+
+    # -- internals ---------------------------------------------------------------------------------------
+    def _propagate(self, t_s: float, ref, vel, speed) -> None:
+        cfg = self.cfg
+        ref0, vel0, head0, lat0 = self._last
+        dt_total = t_s - self.t_s
+        acc = (vel - vel0) / dt_total
+        vmid = 0.5 * (vel + vel0)
+        tau_b = self._tau_b(0.5 * (speed + float(np.hypot(*vel0))))
+        nsub = int(np.ceil(dt_total / cfg.max_step_s))
+        dt = dt_total / nsub
+        A = error_dynamics(np.radians(lat0), vmid, acc, head0, tau_b)
+        Phi, Qd = discretise(A, continuous_noise(cfg.ins, cfg.map_error, tau_b), dt)
+        qn = cfg.pos_noise_m_rts**2 * dt
+        for _ in range(nsub):
+            P_before = self.P_ins[:2, :2].copy()
+            self.P_ins = Phi @ self.P_ins @ Phi.T + Qd
+            self.P_ins = 0.5 * (self.P_ins + self.P_ins.T)
+            if isinstance(self.be, _Mpf):
+                self.be.predict(Phi, Qd, qn)
+            else:
+                dP = self.P_ins[:2, :2] - P_before
+                w, V = np.linalg.eigh(0.5 * (dP + dP.T))
+                dP = (V * np.maximum(w, 0.0)) @ V.T
+                self.be.predict(Phi, Qd, qn, dP, float(Phi[N_NL + IB, N_NL + IB]), float(Qd[N_NL + IB, N_NL + IB]))
+
+    def _anchor(self, pos_cov) -> None:
+        """Reference as good as GNSS: the position is the reference's, INS error states at their prior; only the
+        map misfit keeps what the readings taught it."""
+        _, _, _, _, b_mean, b_var = self.be.moments()
+        self.P_ins = prior_covariance(self.cfg, pos_cov)
+        self.be.init(self.P_ins, b_mean=b_mean, b_var=b_var)
+        self._holdoff_until = -np.inf
+
+    def _diverged(self, m, cov, nis_mean) -> bool:
+        cfg = self.cfg
+        if self.t_s < self._holdoff_until:
+            return False
+        Pn = self.P_ins[:2, :2]
+        full = self._nis and (self._nis[-1][0] - self._nis[0][0]) >= 0.5 * cfg.nis_window_s
+        if full and nis_mean > cfg.nis_max:
+            return True
+        if len(self._lost) >= cfg.lost_count_max:
+            return True
+        if np.trace(cov) > cfg.spread_max_factor**2 * np.trace(Pn) + 1e6:
+            return True
+        d2 = float(m @ np.linalg.solve(Pn + cov, m))
+        return d2 > cfg.implausible_chi2
+
+    def _reinit(self, ref_cov, b_mean, b_var) -> None:
+        P = self.P_ins.copy()
+        if ref_cov is not None:
+            P[:2, :2] = np.asarray(ref_cov, float).reshape(2, 2)
+        P[:2, :2] *= self.cfg.reinit_widen**2
+        self.be.init(P, b_mean=b_mean, b_var=max(b_var, 1.0))
+        self.reinit_count += 1
+        self._holdoff_until = self.t_s + self.cfg.reinit_holdoff_s
+        self._reset_windows()
+
+
+# ---- batch ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SeqGravTrack:
+    """run_batch output: one row per reading that produced an estimate (index into the inputs in ``index``)."""
+
+    index: np.ndarray
+    t_s: np.ndarray
+    pos_ne_m: np.ndarray
+    err_ne_m: np.ndarray
+    cov_ne_m2: np.ndarray  # (n, 2, 2)
+    h_acc_m: np.ndarray
+    status: np.ndarray  # str
+    n_eff: np.ndarray
+    bimodality: np.ndarray
+    signal_ratio: np.ndarray
+    nis_mean: np.ndarray
+    reinit_count: np.ndarray
+    ins_h_sigma_m: np.ndarray
+    map_bias_mgal: np.ndarray
+    cpu_s: np.ndarray
+
+
+def stack_estimates(index, ests: list[SeqGravEstimate]) -> SeqGravTrack:
+    return SeqGravTrack(
+        np.asarray(index, int), np.array([e.t_s for e in ests]), np.array([e.pos_ne_m for e in ests]).reshape(-1, 2),
+        np.array([e.err_ne_m for e in ests]).reshape(-1, 2), np.array([e.cov_ne_m2 for e in ests]).reshape(-1, 2, 2),
+        np.array([e.h_acc_m for e in ests]), np.array([e.status for e in ests], dtype=object),
+        np.array([e.n_eff for e in ests]), np.array([e.bimodality for e in ests]),
+        np.array([e.signal_ratio for e in ests]), np.array([e.nis_mean for e in ests]),
+        np.array([e.reinit_count for e in ests], int), np.array([e.ins_h_sigma_m for e in ests]),
+        np.array([e.map_bias_mgal for e in ests]), np.array([e.cpu_s for e in ests]))
+
+
+def run_batch(lmap: LocalGravityMap, t_s, g_mgal, ref_pos_ne_m, ref_vel_ne_mps, sigma_mgal, *,
+              ref_cov_ne_m2=None, heading_rad=None, lat_deg=None, cfg: SeqGravConfig | None = None,
+              rng: np.random.Generator | int = 0) -> SeqGravTrack:
+    """The streaming filter over arrays (n readings): identical to feeding them one by one. ``sigma_mgal`` may be a
+    scalar; ``ref_cov_ne_m2`` (n, 2, 2) with NaN rows meaning "no navigator covariance at this reading"."""
+    f = SequentialGravityFilter(lmap, cfg, rng)
+    t = np.asarray(t_s, float)
+    n = t.size
+    sig = np.broadcast_to(np.asarray(sigma_mgal, float), (n,))
+    pos = np.asarray(ref_pos_ne_m, float).reshape(n, 2)
+    vel = np.asarray(ref_vel_ne_mps, float).reshape(n, 2)
+    g = np.asarray(g_mgal, float).reshape(n)
+    idx, out = [], []
+    for k in range(n):
+        rc = None
+        if ref_cov_ne_m2 is not None and np.all(np.isfinite(ref_cov_ne_m2[k])):
+            rc = ref_cov_ne_m2[k]
+        e = f.feed(t[k], g[k], pos[k], vel[k], float(sig[k]), ref_cov_ne_m2=rc,
+                   heading_rad=None if heading_rad is None else float(heading_rad[k]),
+                   lat_deg=None if lat_deg is None else float(lat_deg[k]))
+        if e is not None:
+            idx.append(k)
+            out.append(e)
+    return stack_estimates(idx, out)

@@ -1,0 +1,81 @@
+"""Marine scenario (replay/gravity/marine.py): the ship profile, determinism by seed, the GNSS cut and the Eotvos
+error the navigator's velocity leaves in the corrected readings."""
+
+import numpy as np
+import pytest
+
+from companion.matching import GravityMap, LocalGravityMap
+from companion.matching.eotvos import eotvos_from_ne_mgal
+from replay.gravity.marine import (MARINE_INS, GnssModel, MapCase, ShipProfile, draw_track, ship_segments,
+                                   simulate_marine)
+from tests.conftest import SHARED, require
+
+
+def _case() -> MapCase:
+    ax = np.arange(-80_000.0, 80_001.0, 1000.0)
+    N, E = np.meshgrid(ax, ax, indexing="ij")
+    g = 20.0 * np.sin(N / 7000.0) * np.cos(E / 9000.0)
+    lmap = LocalGravityMap(GravityMap(g, ax, ax, "local_m"))
+    return MapCase("synthetic", "1 km", lmap, lmap, lmap.bounds_ne())
+
+
+RES = np.random.default_rng(0).normal(0.0, 5.0, 500)
+
+
+def test_ship_profile_survey_lines_and_duration():
+    p = ShipProfile(speed_mps=6.0, hours=2.0, transit_km=10.0, line_km=12.0, spacing_km=3.0)
+    segs = ship_segments(p)
+    assert sum(s.duration_s for s in segs) == pytest.approx(7200.0)
+    assert segs[0].curvature_per_m == 0.0 and segs[0].duration_s == pytest.approx(10_000.0 / 6.0)
+    turns = [s for s in segs if s.curvature_per_m != 0.0]
+    assert len(turns) >= 4 and {np.sign(s.curvature_per_m) for s in turns} == {-1.0, 1.0}
+    with pytest.raises(ValueError):
+        ShipProfile(spacing_km=0.5, turn_radius_m=500.0)
+
+
+def _run(seed, case=None, hours=0.5):
+    case = case or _case()
+    rng = np.random.default_rng(seed)
+    traj = draw_track(case, ShipProfile(hours=hours), rng, margin_m=30_000.0)
+    return simulate_marine(case.truth_map, traj, rng, gnss=GnssModel(cut_s=600.0), residuals_mgal=RES)
+
+
+def test_marine_scenario_is_deterministic_by_seed():
+    a, b, c = _run(7), _run(7), _run(8)
+    for name in ("true_ne_m", "nav_ne_m", "nav_vel_ne_mps", "gravity_mgal", "gravity_raw_mgal"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+        assert not np.array_equal(getattr(a, name), getattr(c, name))
+
+
+def test_gnss_cut_and_eotvos_with_the_navigator_velocity():
+    r = _run(3)
+    before = r.t_s < r.cut_s
+    err = np.hypot(*(r.nav_ne_m - r.true_ne_m).T)
+    assert err[before].max() < 15.0  # GNSS noise (2 m 1-sigma)
+    assert np.all(np.isfinite(r.nav_cov_ne_m2[before])) and np.all(np.isnan(r.nav_cov_ne_m2[~before]))
+    assert err[-1] > err[before].max()  # the free INS drifts after the cut
+    # corrected = map + noise + E(true v) - E(nav v): the residual against map+noise is the Eotvos error
+    lat = np.full(r.t_s.size, 45.0)
+    eo_err = eotvos_from_ne_mgal(r.true_vel_ne_mps, lat) - eotvos_from_ne_mgal(r.nav_vel_ne_mps, lat)
+    noise = r.gravity_raw_mgal - r.map_true_mgal - eotvos_from_ne_mgal(r.true_vel_ne_mps, lat)
+    np.testing.assert_allclose(r.gravity_mgal - r.map_true_mgal - noise, eo_err, atol=1e-9)
+
+
+def test_marine_ins_is_the_liu_grade():
+    assert MARINE_INS.gyro_bias_degph == 0.01 and MARINE_INS.accel_bias_ug == 100.0
+    assert MARINE_INS.init_heading_sigma_rad == pytest.approx(np.radians(0.5 / 60))
+
+
+def test_real_maps_deterministic_by_seed():
+    require(SHARED / "data" / "gravity")
+    from replay.gravity.marine import map_case
+
+    case = map_case("AK")
+    rng_a, rng_b = np.random.default_rng(11), np.random.default_rng(11)
+    ta = draw_track(case, ShipProfile(hours=0.5), rng_a)
+    tb = draw_track(case, ShipProfile(hours=0.5), rng_b)
+    ra = simulate_marine(case.truth_map, ta, rng_a)
+    rb = simulate_marine(case.truth_map, tb, rng_b)
+    np.testing.assert_array_equal(ra.gravity_mgal, rb.gravity_mgal)
+    np.testing.assert_array_equal(ra.nav_ne_m, rb.nav_ne_m)
+    assert np.all(np.isfinite(ra.gravity_mgal))
