@@ -75,7 +75,7 @@ def sample_playback():
     """The sample flight's messages and truth (built once per process: about 2 s)."""
     global _PLAYBACK
     if _PLAYBACK is None:
-        from companion.sim.vehicle import playback_from_flight
+        from companion.sim.playback import playback_from_flight
 
         _PLAYBACK = playback_from_flight()
     return _PLAYBACK

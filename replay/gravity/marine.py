@@ -32,15 +32,17 @@ from functools import lru_cache
 import numpy as np
 
 from companion.gravity.sequential import SeqGravConfig, SeqGravTrack, run_batch
-from companion.matching.data import LOCAL_1KM, shared_gravity_dir
-from companion.matching.eotvos import eotvos_from_ne_mgal
-from companion.matching.maps import GravityMap, LocalGravityMap, load_grid
-from companion.matching.data import TASMAN
-from replay.gravity.common import AREAS, RESULTS_DIR, area_box_ne, area_map, load_marine, write_section
-from replay.gravity.noise import ship_minus_satellite_mgal
-from replay.gravity.sim import (GravimeterModel, InsErrorModel, Segment, Trajectory, gravimeter_noise_mgal,
+from companion.gravity.data import LOCAL_1KM
+from companion.shared_data import shared_gravity_dir
+from companion.gravity.eotvos import eotvos_from_ne_mgal
+from companion.gravity.maps import GravityMap, LocalGravityMap, load_grid
+from companion.gravity.data import TASMAN
+from replay.gravity.areas import AREAS, area_box_ne, area_map, load_marine
+from replay.harness.results import RESULTS_DIR, write_section
+from companion.sim.gravity_residuals import ship_minus_satellite_mgal
+from companion.sim.gravity_scenario import (GravimeterModel, InsErrorModel, Segment, ScenarioTrack, gravimeter_noise_mgal,
                                 make_trajectory, simulate_ins, turn)
-from replay.gravity2.common import md_table
+from replay.harness.results import md_table
 
 RESULTS_MD = RESULTS_DIR / "gravity_marine.md"
 
@@ -92,7 +94,7 @@ def ship_segments(p: ShipProfile) -> list[Segment]:
     return out
 
 
-def ship_trajectory(p: ShipProfile, start_ne_m, heading_deg: float, dt_s: float = 1.0) -> Trajectory:
+def ship_trajectory(p: ShipProfile, start_ne_m, heading_deg: float, dt_s: float = 1.0) -> ScenarioTrack:
     return make_trajectory(p.speed_mps, ship_segments(p), dt_s=dt_s, heading0_deg=heading_deg, start_ne_m=start_ne_m)
 
 
@@ -144,7 +146,7 @@ def map_case(name: str) -> MapCase:
 
 
 def draw_track(case: MapCase, p: ShipProfile, rng: np.random.Generator, margin_m: float | None = None,
-               min_track_std_mgal: float = 0.0) -> Trajectory:
+               min_track_std_mgal: float = 0.0) -> ScenarioTrack:
     """Start and heading drawn until the whole track lies on valid map (Tasman land is masked) and the map's STD
     along the track after the GNSS cut is at least ``min_track_std_mgal`` (a survey planned over features, as
     Gao 2022 sec. 3 chose its tracks in areas "suitable for gravity-aided navigation")."""
@@ -200,7 +202,7 @@ class MarineRun:
     cut_s: float
 
 
-def simulate_marine(truth_map: LocalGravityMap, traj: Trajectory, rng: np.random.Generator,
+def simulate_marine(truth_map: LocalGravityMap, traj: ScenarioTrack, rng: np.random.Generator,
                     ins_model: InsErrorModel = MARINE_INS, gnss: GnssModel = GnssModel(),
                     white_sigma_mgal: float = 1.0, residuals_mgal: np.ndarray | None = None,
                     lat_deg_if_local: float = 45.0) -> MarineRun:
@@ -214,7 +216,7 @@ def simulate_marine(truth_map: LocalGravityMap, traj: Trajectory, rng: np.random
     vel = traj.vel_ne_mps + gnss_vel
     heading = traj.heading_rad.copy()
     if k_cut < n:  # free INS from the last GNSS state
-        after = Trajectory(t[k_cut:], traj.pos_ne_m[k_cut:], traj.vel_ne_mps[k_cut:], traj.acc_ne_mps2[k_cut:],
+        after = ScenarioTrack(t[k_cut:], traj.pos_ne_m[k_cut:], traj.vel_ne_mps[k_cut:], traj.acc_ne_mps2[k_cut:],
                            traj.heading_rad[k_cut:])
         lat0 = truth_map.frame.ref_lat_deg if truth_map.frame else lat_deg_if_local
         ins = simulate_ins(after, lat0, replace(ins_model, init_pos_sigma_m=0.0), rng)
@@ -347,7 +349,7 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--no-write", action="store_true")
     a = ap.parse_args(argv)
-    from replay.gravity2.executor import make_executor
+    from replay.harness.executor import make_executor
 
     load0 = os.getloadavg()
     t0 = time.time()

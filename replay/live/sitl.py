@@ -464,7 +464,7 @@ def sitl_commit(sitl_bin: Path) -> str:
 
 def write_results(results: list[core.ArmResult], a, argv: list[str], started: str, load_before: str,
                   after: str | None = None) -> None:
-    from replay.gravity2.common import write_section
+    from replay.harness.results import write_section
 
     RESULTS.mkdir(parents=True, exist_ok=True)
     png = RESULTS / f"sitl_ab{a.tag}.png"

@@ -22,7 +22,7 @@ MODE_GUIDED = 4
 MODE_LAND = 9
 COPTER_MODES = {0: "STABILIZE", 2: "ALT_HOLD", 3: "AUTO", 4: "GUIDED", 5: "LOITER", 6: "RTL", 9: "LAND", 16: "POSHOLD",
                 17: "BRAKE", 20: "GUIDED_NOGPS"}
-MAV_MODE_FLAG_SAFETY_ARMED = 128
+from pymavlink.dialects.v20.ardupilotmega import MAV_MODE_FLAG_SAFETY_ARMED  # noqa: E402
 EARTH_R_M = 6_378_137.0
 #: a truth sample pair further apart than this is a gap: no interpolated truth inside it
 MAX_TRUTH_GAP_S = 0.5

@@ -7,9 +7,9 @@ import pytest
 
 from companion.gravity.sequential import (SeqGravConfig, SequentialGravityFilter, error_dynamics,
                                           eotvos_jacobian_mgal_per_mps, run_batch)
-from companion.matching import GravityMap, LocalGravityMap
-from companion.matching.eotvos import eotvos_from_ne_mgal
-from replay.gravity.sim import InsErrorModel, Segment, make_trajectory, simulate_ins, turn
+from companion.gravity.maps import GravityMap, LocalGravityMap
+from companion.gravity.eotvos import eotvos_from_ne_mgal
+from companion.sim.gravity_scenario import InsErrorModel, Segment, make_trajectory, simulate_ins, turn
 
 
 def _synthetic_map(seed=11, half_m=70_000.0, cell_m=500.0, flat_east_of_m=None) -> LocalGravityMap:

@@ -4,8 +4,8 @@ error the navigator's velocity leaves in the corrected readings."""
 import numpy as np
 import pytest
 
-from companion.matching import GravityMap, LocalGravityMap
-from companion.matching.eotvos import eotvos_from_ne_mgal
+from companion.gravity.maps import GravityMap, LocalGravityMap
+from companion.gravity.eotvos import eotvos_from_ne_mgal
 from replay.gravity.marine import (MARINE_INS, GnssModel, MapCase, ShipProfile, draw_track, ship_segments,
                                    simulate_marine)
 from tests.conftest import SHARED, require
