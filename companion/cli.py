@@ -256,8 +256,6 @@ def cmd_run(args) -> int:
 
         out = out / datetime.datetime.now(datetime.timezone.utc).strftime("companion-%Y%m%dT%H%M%SZ.mcap")
     out.parent.mkdir(parents=True, exist_ok=True)
-    from companion.record.clock import RecordClock
-
     live_view = None
     if args.foxglove:
         from companion.record.live_view import LiveView, parse_endpoint
@@ -267,7 +265,7 @@ def cmd_run(args) -> int:
         except ValueError as err:
             raise UsageError(str(err)) from None
     rec_kw = dict(flush_interval_s=config.record.flush_interval_s, fsync=config.record.fsync,
-                  clock=RecordClock(host_fallback=True), live_view=live_view)
+                  clock=None, live_view=live_view)  # live records stay on boot time (see RecordClock)
     if config.record.segment_s > 0:
         recorder = RotatingRecorder(out, segment_s=config.record.segment_s, **rec_kw)
     else:

@@ -165,9 +165,11 @@ def test_live_path_gives_the_replay_payloads(tmp_path):
 
     def payloads(path):
         d: dict[str, list] = {}
+        # compared on the vehicle clock: a replay's log times are UTC (its clock metadata gives the offset)
+        offset = int((summarize(path).metadata_dict("clock") or {}).get("utc_offset_ns", 0))
         for topic, t_ns, data in iter_payloads(path):
             if not topic.startswith(skip):
-                d.setdefault(topic, []).append((t_ns, data))
+                d.setdefault(topic, []).append((t_ns - offset, data))
         return d
 
     live, replay = payloads(tmp_path / "live.mcap"), payloads(tmp_path / "replay.mcap")
