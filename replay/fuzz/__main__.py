@@ -23,7 +23,7 @@ from pathlib import Path
 from replay.fuzz.campaign import measure_baselines, mutants, run_campaign
 from replay.fuzz.logs import clean_inputs, shared_logs_dir
 from replay.fuzz.mutate import KINDS
-from replay.fuzz.properties import COLUMNS, VIOLATIONS, outcome_rows
+from replay.fuzz.properties import COLUMNS, outcome_rows
 
 TITLE = "# Fault tolerance: mutated logs through `companion replay`, a hostile live link against `companion run`\n\n"
 

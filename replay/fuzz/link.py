@@ -584,7 +584,8 @@ def scenarios() -> dict[str, Callable[[], list[Fault]]]:
                                          Inject(2.0, {"ATTITUDE": [("time_boot_ms", "+1000s")]}),
                                          Inject(3.0, {"GPS_RAW_INT": [("time_usec", "-5s")]})],
         "burst_14k": lambda: [Burst(1.0, 3.0)],
-        "sigterm_in_burst": lambda: [Burst(1.0, 6.0), Sigterm(3.5)],
+        "burst_40k": lambda: [Burst(1.0, 3.0, rate=40_000)],
+        "sigterm_in_burst_40k": lambda: [Burst(1.0, 6.0, rate=40_000), Sigterm(3.5)],
     }
 
 
