@@ -15,8 +15,8 @@ XFAIL = dict(strict=True, raises=AssertionError)
 def _decoded_flight(gnss_hz: float = 10.0):
     """Events of a simulated flight (10 Hz receiver), through the live link's MAVLink decoder."""
     from companion.sim.flight import SimConfig, sample_profile, simulate_flight
-    from companion.sim.vehicle import playback_from_flight
-    from companion.sources.mavlink_decode import MavlinkDecoder
+    from companion.sim.playback import playback_from_flight
+    from companion.mavlink.decode import MavlinkDecoder
 
     flight = simulate_flight(sample_profile(), 7, replace(SimConfig(), gnss_rate_hz=gnss_hz))
     dec = MavlinkDecoder()
@@ -32,7 +32,7 @@ def _decoded_flight(gnss_hz: float = 10.0):
                    "a receiver 300 m away for 5 s never stops the 3D fixes")
 def test_every_state_is_cross_checked_against_a_recent_receiver_fix():
     from companion.events import GnssFix
-    from companion.geodesy import LocalFrame
+    from companion.nav.frame import LocalFrame
     from companion.inject.gps_input import GpsInputRecord, InjectConfig, Injector
     from companion.pipeline import build_pipeline
 
@@ -83,7 +83,7 @@ def test_gps_raw_int_at_the_limits_is_not_a_fix(field, value):
     from pymavlink.dialects.v20 import ardupilotmega as mav
 
     from companion.events import GnssFix
-    from companion.sources.mavlink_decode import MavlinkDecoder
+    from companion.mavlink.decode import MavlinkDecoder
 
     packer = mav.MAVLink(None, srcSystem=1, srcComponent=1)
     parser = mav.MAVLink(None)
