@@ -48,11 +48,11 @@ VEHICLE_PARAMS = {
     "FS_THR_ENABLE": 0,
     "SIM_GPS1_ENABLE": 1,
 }
-#: arm B: the README's "ArduPilot set-up" (instance 2 = MAVLink, the EKF follows it)
+#: arm B: the README's "ArduPilot set-up" (instance 2 = MAVLink; GPS1 primary, GPS2 taken only when GPS1 has no 3D fix)
 COMPANION_PARAMS = {
     "GPS2_TYPE": 14,
-    "GPS_AUTO_SWITCH": 0,
-    "GPS_PRIMARY": 1,
+    "GPS_AUTO_SWITCH": 4,
+    "GPS_PRIMARY": 0,
     "SERIAL1_PROTOCOL": 2,
     "EK3_SRC1_POSXY": 3,
     "EK3_SRC1_VELXY": 3,
@@ -475,7 +475,7 @@ def write_results(results: list[core.ArmResult], a, argv: list[str], started: st
     params_b = {**COMPANION_PARAMS, "GPS_AUTO_SWITCH": a.gps_auto_switch}
     text = [
         f"## {', '.join(dict.fromkeys(r.scenario for r in results))}"
-        + (f" (arm B with GPS_AUTO_SWITCH={a.gps_auto_switch})" if a.gps_auto_switch != 0 else "")
+        + (f" (arm B with GPS_AUTO_SWITCH={a.gps_auto_switch})" if a.gps_auto_switch != 4 else "")
         + (f" (companion --set {' '.join(a.companion_set)})" if a.companion_set else "") + "\n",
         f"Command: `{' '.join(['python -m replay.live.sitl'] + argv)}`  ",
         f"SITL: `{a.sitl_bin_path}` at ArduPilot commit {sitl_commit(a.sitl_bin_path)}; `--speedup {a.speedup}`; "
@@ -526,7 +526,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--arms", nargs="+", default=["A", "B"], choices=["A", "B"])
     p.add_argument("--speedup", type=float, default=1.0)
     p.add_argument("--home", default=HOME)
-    p.add_argument("--gps-auto-switch", type=int, default=0, help="GPS_AUTO_SWITCH for arm B (README: 0)")
+    p.add_argument("--gps-auto-switch", type=int, default=4, help="GPS_AUTO_SWITCH for arm B (README: 4)")
     p.add_argument("--param", action="append", metavar="NAME=VALUE", help="extra SITL parameter for both arms")
     p.add_argument("--companion-set", action="append", metavar="SECTION.KEY=VALUE", help="passed to companion run --set")
     p.add_argument("--arm-timeout", type=float, default=90.0)

@@ -44,10 +44,8 @@ def test_both_arms_arm_fly_and_are_measured(hover):
 
 
 @pytest.mark.timeout(900)
-@pytest.mark.xfail(strict=True, reason="measured 2026-12-01 (SITL 64a9c78, speedup 1): hover mean EKF error "
-                   "0.03 m with the companion as primary GPS2 vs 0.01 m alone -- the EKF follows the companion's "
-                   "smoothed, delayed copy of GPS1, not the receiver")
 def test_companion_does_no_harm_in_a_healthy_hover(hover):
-    """The issue's healthy-flight target: mean EKF error with the companion <= 1.1x ArduPilot alone."""
+    """The healthy-flight target: mean EKF error with the companion <= 1.1x ArduPilot alone (measured with the default
+    set-up, GPS1 primary and GPS_AUTO_SWITCH=4: 0.01 vs 0.01 m; the former GPS2-primary set-up gave 0.03 vs 0.01 m)."""
     a, b = hover["A"].phases["hover"][0], hover["B"].phases["hover"][0]
     assert b <= 1.1 * a, f"hover mean EKF error: {b:.3f} m with the companion vs {a:.3f} m alone"
