@@ -75,8 +75,6 @@ def _keep(outs, into):
     return outs
 
 
-@pytest.mark.xfail(**XFAIL, reason="GPS_RAW_INT at lat +-90, lon +-180 or alt +-2147 km is decoded as a 3D fix "
-                   "(MavlinkDecoder._gps: inclusive range check, no altitude check)")
 @pytest.mark.parametrize("field,value", [("lat", 900000000), ("lat", -900000000), ("lon", 1800000000),
                                          ("lon", -1800000000), ("alt", 2147483647), ("alt", -2147483648)])
 def test_gps_raw_int_at_the_limits_is_not_a_fix(field, value):
