@@ -149,7 +149,7 @@ class Runtime:
                                 self._on_status(st)
                     elif self._behind:
                         self._behind = False
-                        self._log(f"companion: caught up with the link; shed so far: {self._shed_text()}")
+                        _logger.info("caught up with the link; shed so far: %s", self._shed_text())
                     self._rx = (item.recv_perf_s, item.trigger)
                     self.injector.arrival_s = item.recv_perf_s
                     for ev in item.events:
@@ -202,7 +202,7 @@ class Runtime:
             self._behind = True
             self.shed["episodes"] += 1
             lag = time.perf_counter() - first.recv_perf_s
-            self._log(f"companion: {lag:.2f} s behind the link: coalescing IMU samples to catch up")
+            _logger.warning("%.2f s behind the link: coalescing IMU samples to catch up", lag)
         last = batches[-1]
         return Batch(last.recv_perf_s, merged, last.trigger), other
 
