@@ -99,6 +99,13 @@ class Runtime:
             if len(vals) >= LATENCY_KEEP:  # bounded memory on a service running for days: keep every other
                 self.latency_s[trigger] = vals[::2]
 
+    def _say(self, level: int, text: str) -> None:
+        """One line to the caller's log hook when it gave one, else to the module logger."""
+        if self._log is not None:
+            self._log(text)
+        else:
+            _logger.log(level, "%s", text)
+
     def _on_status(self, st: LinkStatus) -> None:
         self.link_log.append(st)
         if self.sink is not None:
@@ -149,7 +156,7 @@ class Runtime:
                                 self._on_status(st)
                     elif self._behind:
                         self._behind = False
-                        _logger.info("caught up with the link; shed so far: %s", self._shed_text())
+                        self._say(logging.INFO, f"caught up with the link; shed so far: {self._shed_text()}")
                     self._rx = (item.recv_perf_s, item.trigger)
                     self.injector.arrival_s = item.recv_perf_s
                     for ev in item.events:
@@ -202,7 +209,7 @@ class Runtime:
             self._behind = True
             self.shed["episodes"] += 1
             lag = time.perf_counter() - first.recv_perf_s
-            _logger.warning("%.2f s behind the link: coalescing IMU samples to catch up", lag)
+            self._say(logging.WARNING, f"{lag:.2f} s behind the link: coalescing IMU samples to catch up")
         last = batches[-1]
         return Batch(last.recv_perf_s, merged, last.trigger), other
 
