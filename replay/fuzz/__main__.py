@@ -187,7 +187,8 @@ def main(argv: list[str] | None = None) -> int:
     if a.live or a.live_only:
         from replay.fuzz.link import run_live_fuzz
 
-        text = run_live_fuzz(load=load, workdir=Path(a.workdir), seed=a.seed)
+        cmd = "nice -n 10 .venv/bin/python -m replay.fuzz " + " ".join(argv if argv is not None else sys.argv[1:])
+        text = run_live_fuzz(load=Load(), workdir=Path(a.workdir), seed=a.seed, command=cmd.strip())
         print(text)
         if not a.no_write:
             _write("live", text, out)

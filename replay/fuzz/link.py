@@ -589,7 +589,8 @@ def scenarios() -> dict[str, Callable[[], list[Fault]]]:
     }
 
 
-def run_live_fuzz(*, load=None, workdir: Path, seed: int = 0, transports=("tcp", "udp"), names=None) -> str:
+def run_live_fuzz(*, load=None, workdir: Path, seed: int = 0, transports=("tcp", "udp"), names=None,
+                  command: str = "nice -n 10 .venv/bin/python -m replay.fuzz --live-only") -> str:
     """Every scenario over each transport; the results as a Markdown section."""
     from replay.harness.results import md_table
 
@@ -622,7 +623,7 @@ def run_live_fuzz(*, load=None, workdir: Path, seed: int = 0, transports=("tcp",
         "",
         "Command (repository root):",
         "",
-        "    nice -n 10 .venv/bin/python -m replay.fuzz --live-only",
+        f"    {command}",
         "",
         f"replay/fuzz/link.py: a fake autopilot on loopback TCP (it listens, `--connect tcp:`) and UDP (`--connect "
         f"udpin:`) plays the generated sample flight from 20 s in real time (HEARTBEAT, SYSTEM_TIME, GPS_RAW_INT 5 Hz, "

@@ -49,7 +49,7 @@ def _params():
 
 
 @pytest.mark.timeout(300)
-@pytest.mark.parametrize("kind", _params())
+@pytest.mark.parametrize("kind", list(_params()))
 def test_fuzz_replay(kind, campaign):
     inputs, base, mode, work = campaign
     kinds = list(KINDS)
