@@ -17,13 +17,17 @@ from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
+from pymavlink import mavutil
 
-MODE_GUIDED = 4
-MODE_LAND = 9
-COPTER_MODES = {0: "STABILIZE", 2: "ALT_HOLD", 3: "AUTO", 4: "GUIDED", 5: "LOITER", 6: "RTL", 9: "LAND", 16: "POSHOLD",
-                17: "BRAKE", 20: "GUIDED_NOGPS"}
-from pymavlink.dialects.v20.ardupilotmega import MAV_MODE_FLAG_SAFETY_ARMED  # noqa: E402
-EARTH_R_M = 6_378_137.0
+from companion.constants import WGS84_A_M
+from companion.mavlink.dialect import mavlink
+
+#: ArduCopter's custom modes, from pymavlink's table (HEARTBEAT.custom_mode -> name)
+COPTER_MODES: dict[int, str] = dict(mavutil.mode_mapping_acm)
+MODE_GUIDED = next(n for n, name in COPTER_MODES.items() if name == "GUIDED")
+MODE_LAND = next(n for n, name in COPTER_MODES.items() if name == "LAND")
+MAV_MODE_FLAG_SAFETY_ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+EARTH_R_M = WGS84_A_M
 #: a truth sample pair further apart than this is a gap: no interpolated truth inside it
 MAX_TRUTH_GAP_S = 0.5
 MARK_STEP_S = 5.0
