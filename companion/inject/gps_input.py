@@ -48,7 +48,7 @@ from typing import Any, ClassVar
 from companion import units
 from companion.constants import CHI2_2DOF_999, GPS_EPOCH_UNIX_S, GPS_LEAP_S, UERE_M, WEEK_S, receiver_sigma
 from companion.nav.outputs import FusedState
-from companion.events import Attitude, Event, FixType, GnssFix, ImuSample, Reboot, SystemTime
+from companion.events import Attitude, Event, FixType, GnssFix, Heartbeat, ImuSample, Reboot, SystemTime
 from companion.mavlink.gps_input import (  # noqa: F401 - the wire encoding, re-exported for the injector's users
     IGNORE_ALT,
     IGNORE_HDOP,
@@ -84,6 +84,11 @@ class InjectConfig:
     activate: str = "backup"
     outage_aids: str = "position_fix"  # '+'-separated FusedState.measurement names that count as aid in an outage
     aid_valid_s: float = 300.0  # an aid keeps the fix type this long (the covariance grows and degrades it meanwhile)
+    # backup, vehicle armed, receiver healthy: send the state with its fix type (True) or as no fix (False). ArduPilot
+    # checks every GPS for a 3D fix at arming only; in flight, GPS_AUTO_SWITCH = 4 switches to this instance the moment
+    # the receiver loses its fix if this one still reports 3D (SITL's GPS1 reports no fix 0.1-0.3 s after a denial,
+    # before the companion hears of it), and EKF3 takes its position. False removes that switch.
+    backup_fix_when_armed: bool = True
     rate_hz: float = 10.0  # at most this many GPS_INPUT per second of vehicle time (>= 5 when injecting)
     max_h_acc_3d_m: float = 10.0  # 3D fix only while sigma_h is within this ...
     max_v_acc_3d_m: float = 20.0  # ... and sigma_v within this
@@ -227,6 +232,7 @@ class Injector(Stage):
         self._newest_input_t = -math.inf
         self._rx_fix: tuple[float, float, float, float] | None = None  # t, lat, lon, sigma_h of the receiver
         self._inconsistent = False
+        self._armed = False  # the autopilot's HEARTBEAT armed flag
 
     # -- stage interface ----------------------------------------------------------------------
     def process(self, item: Any) -> list[Event]:
@@ -238,6 +244,9 @@ class Injector(Stage):
             return self._on_state(item)
         if isinstance(item, GnssFix):
             return self._on_gnss(item)
+        if isinstance(item, Heartbeat):
+            self._armed = item.armed
+            return []
         if isinstance(item, SystemTime):
             if _finite(item.unix_time_s) and GPS_EPOCH_UNIX_S < item.unix_time_s < MAX_UNIX_S:
                 self._utc = item
@@ -415,6 +424,9 @@ class Injector(Stage):
         if c.activate == "backup" and fix >= FixType.FIX_2D and self._receiver_out(s.t_s) and not (
                 self._last_aid_t is not None and s.t_s - self._last_aid_t <= c.aid_valid_s):
             fix, why = int(FixType.NO_FIX), "receiver outage, no aid the autopilot lacks: it dead-reckons alone"
+        elif c.activate == "backup" and fix >= FixType.FIX_2D and self._armed and not c.backup_fix_when_armed and not (
+                self._receiver_out(s.t_s) and self._last_aid_t is not None and s.t_s - self._last_aid_t <= c.aid_valid_s):
+            fix, why = int(FixType.NO_FIX), "armed beside a healthy receiver: no fix, so no switch when it is lost"
         cov = s.cov_diag
         if len(cov) >= 6 and _finite(cov[3], cov[4]) and min(cov[3], cov[4]) >= 0:
             speed_acc = math.sqrt(max(cov[3], cov[4]))

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from companion.constants import CHI2_2DOF_999, CHI2_3DOF_999
+from companion.nav.gnss_lag import GnssLagConfig
 from companion.nav.hover import HoverConfig
 from companion.nav.knn_predictor import KnnConfig
 
@@ -82,6 +83,11 @@ class NavigatorConfig:
     fuse_attitude_yaw: bool = False
     fuse_gnss_velocity: bool = True
     gnss_delay_s: float = 0.0
+    # measure the GNSS latency online (companion.nav.gnss_lag) and use it instead of gnss_delay_s once observable;
+    # needs ahrs_check (the autopilot attitude resolves the specific force). Off for log replays (the shared logs'
+    # tuning above); on for the live companion (companion.config.live_nav_defaults)
+    gnss_delay_estimate: bool = False
+    gnss_lag: GnssLagConfig = field(default_factory=GnssLagConfig)
     gate_chi2: float = CHI2_3DOF_999
     gate_reset_s: float = 5.0
     gnss_sigma_model: str = "short_term"  # "short_term" | "accuracy"

@@ -89,7 +89,7 @@ class InsFilter:
         state at constant velocity.
         """
         ins = self.ins
-        te = t - (self.config.gnss_delay_s if delay_s is None else delay_s)
+        te = t - (self._gnss_delay_s() if delay_s is None else delay_s)
         hist = self._hist
         if hist and te < hist[-1][0]:
             if te <= hist[0][0]:
@@ -107,7 +107,37 @@ class InsFilter:
         dt = te - ins.t_s
         return np.array([n + ins.vn * dt, e + ins.ve * dt, d + ins.vd * dt]), np.array([ins.vn, ins.ve, ins.vd])
 
+    def _gnss_delay_s(self) -> float:
+        """The GNSS latency the filters model: the online estimate once it is observable (``gnss_delay_estimate``,
+        companion.nav.gnss_lag), else ``gnss_delay_s``."""
+        est = self._gnss_lag
+        lag = est.lag_s if est is not None else None
+        return self.config.gnss_delay_s if lag is None else lag
+
+    def _check_gnss_delay(self) -> None:
+        """Before a GNSS update: when the modelled latency moved by more than ``gnss_lag.relearn_s`` since the INS
+        filter last re-learnt, widen its tilt and accelerometer-bias uncertainty (to their initial sigmas): the
+        filter explained the mis-modelled lag with those states, and with a tight covariance it would keep the
+        wrong values for minutes (on the simulated square: 8 m instead of 2 m after 30 s without GNSS)."""
+        if self._gnss_lag is None or self._kf is None:
+            return
+        d = self._gnss_delay_s()
+        if self._delay_learnt_s is not None and abs(d - self._delay_learnt_s) <= self.config.gnss_lag.relearn_s:
+            return
+        if self._delay_learnt_s is not None:
+            c = self.config
+            P = self._kf.P
+            for i, s in ((6, c.init_sigma_att_rad), (7, c.init_sigma_att_rad), (9, c.accel_bias_sigma_mps2),
+                         (10, c.accel_bias_sigma_mps2), (11, c.accel_bias_sigma_mps2)):
+                if P[i, i] < s * s:
+                    P[i, :] *= 0.0
+                    P[:, i] *= 0.0
+                    P[i, i] = s * s
+        self._delay_learnt_s = d
+
     def _ins_position_update(self, m: PositionMeasurement, force_reset: bool = False) -> bool:
+        if m.kind == "gnss_pos":
+            self._check_gnss_delay()
         ok, y = self._ins_apply(m)
         if m.kind == "gnss_pos":
             ok = self._gate_bookkeeping(m.t_s, ok, y, m.sigma_h_m, m.sigma_v_m, force_reset)
@@ -146,6 +176,11 @@ class InsFilter:
         self.hover.add_imu(t, ev.accel_frd_mps2, ev.gyro_frd_radps)
         prev_t = self._last_imu_t
         self._last_imu_t = t
+        if self._gnss_lag is not None and prev_t is not None:
+            if 0 < t - prev_t <= c.max_imu_step_s:
+                self._gnss_lag.add_imu(t, t - prev_t, ev.accel_frd_mps2)
+            elif t - prev_t > c.max_imu_step_s:
+                self._gnss_lag.reset_imu()
         ac = self._att_c
         if ac is not None and prev_t is not None and 0 < t - prev_t <= c.max_imu_step_s:
             dt = t - prev_t
@@ -171,10 +206,11 @@ class InsFilter:
             ins.coast(t - 0.02)
             self._kf_t = ins.t_s
         if ins.step(t, ev.accel_frd_mps2, ev.gyro_frd_radps) > 0:
-            if c.gnss_delay_s > 0:
+            if c.gnss_delay_s > 0 or self._gnss_lag is not None:
                 hist = self._hist
                 hist.append([t, *self.frame.ned_tuple(ins.lat_deg, ins.lon_deg, ins.h_m), ins.vn, ins.ve, ins.vd])
-                while hist[0][0] < t - c.gnss_delay_s - 0.2:
+                keep_s = max(c.gnss_delay_s, c.gnss_lag.max_lag_s if self._gnss_lag is not None else 0.0)
+                while hist[0][0] < t - keep_s - 0.2:
                     hist.popleft()
             f = ins.f_ned
             self._f_sum[0] += f[0]
@@ -201,6 +237,7 @@ class InsFilter:
         )
         self._kf = kf
         self._kf_t = t_ins
+        self._delay_learnt_s = self._gnss_delay_s() if self._gnss_lag is not None else None
         if not self.ahrs_consistent and math.isfinite(self.ahrs_heading_offset_rad):
             self._align_yaw(t_ins)
         self._f_sum = [0.0, 0.0, 0.0]

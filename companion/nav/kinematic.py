@@ -47,7 +47,7 @@ class KinematicFilter:
         self._kin_predict(max(m.t_s, self._kin_t))
         kf = self._kin
         x = kf.x.ravel()
-        y, H, R = m.compute_kin(x, self.config.gnss_delay_s)
+        y, H, R = m.compute_kin(x, self._gnss_delay_s())
         Rg = m.R_gate()
         nis, ok = gate(y, H @ kf.P @ H.T + (R if Rg is None else np.maximum(R, Rg)), m.gate_chi2)
         if record:

@@ -57,6 +57,7 @@ from companion.nav.monitors import AhrsHeadingCheck, HoldPrior
 from companion.nav.outputs import FrameInfo, FusedState, PredictorPoint
 from companion.events import Attitude, AutopilotAltitude, Event, GnssFix, ImuSample, PositionFix
 from companion.nav.frame import LocalFrame
+from companion.nav.gnss_lag import GnssLagEstimator
 from companion.nav.recovery import Recovery
 from companion.nav.reorder import ReorderBuffer
 from companion.pipeline.stage import Stage
@@ -100,6 +101,8 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
         self._f_sum = [0.0, 0.0, 0.0]
         self._f_n = 0
         self._hist: deque[list[float]] = deque()  # [t, n, e, d, vn, ve, vd] per IMU step, last delay + 0.2 s
+        self._gnss_lag = GnssLagEstimator(c.gnss_lag) if c.gnss_delay_estimate else None
+        self._delay_learnt_s: float | None = None
         self._monitors_init()
         self.hover = HoverDetector(c.hover)
         self._zupt_t = -math.inf
@@ -165,6 +168,8 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
             if self.config.ahrs_check:
                 C = dcm_from_quat(quat_from_euler(ev.roll_rad, ev.pitch_rad, ev.yaw_rad))
                 self._att_c = tuple(float(x) for x in C[0:2].ravel())
+                if self._gnss_lag is not None:
+                    self._gnss_lag.add_attitude(ev.t_s, self._att_c)
             if (self.mode == "ins" and self.config.fuse_attitude
                     and ev.t_s - self._att_fused_t >= self.config.att_fuse_interval_s):
                 self._att_fused_t = ev.t_s
@@ -187,6 +192,8 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
         gnss_gap = self._note_fix(ev, vel)
         if vel is not None:
             self.hover.add_speed(t, math.hypot(vel[0], vel[1]))
+            if self._gnss_lag is not None and self.ahrs_consistent:
+                self._gnss_lag.add_gnss_velocity(t, vel[0], vel[1])
         if self._reinit_pending is not None:
             self._reinit(t, z, vel)
             self._fix_accepted(t, z, sh, sv, vel)

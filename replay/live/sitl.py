@@ -59,6 +59,9 @@ COMPANION_PARAMS = {
     "EK3_SRC1_POSZ": 1,
     "EK3_SRC1_VELZ": 3,
 }
+#: arm B's companion settings besides --companion-set: the GNSS latency measured online (companion.nav.gnss_lag), and
+#: no fix while armed beside a healthy GPS1 (no GPS_AUTO_SWITCH switch to GPS2 when GPS1 is lost)
+COMPANION_SETS = ["navigator.gnss_delay_estimate=true", "inject.backup_fix_when_armed=false"]
 STREAMS_HZ = {  # requested on the harness's own link (SERIAL0) with SET_MESSAGE_INTERVAL
     "GLOBAL_POSITION_INT": 25, "SIMSTATE": 50, "ATTITUDE": 50, "LOCAL_POSITION_NED": 10, "GPS_RAW_INT": 5,
     "GPS2_RAW": 5, "EKF_STATUS_REPORT": 2, "SYS_STATUS": 1, "HEARTBEAT": 1,
@@ -261,7 +264,7 @@ def fly(sc: core.Scenario, arm: str, a, work: Path) -> core.ArmResult:
         veh.request_streams()
         if arm == "B":
             ccmd = [sys.executable, "-m", "companion.cli", "run", "--connect", f"tcp:127.0.0.1:{base + 2}",
-                    "--inject", "inject", "--gps-id", "1", "--out", str(mcap)] + sum((["--set", s] for s in a.companion_set or []), [])
+                    "--inject", "inject", "--gps-id", "1", "--out", str(mcap)] + sum((["--set", s] for s in _sets(a)), [])
             comp = subprocess.Popen(ccmd, cwd=REPO, stdout=open(work / f"companion_{sc.name}.out", "w"),
                                     stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
         veh.pump(lambda: log.truth != [] and log.ekf != [], 30, "SIMSTATE and GLOBAL_POSITION_INT streams")
@@ -307,6 +310,10 @@ def fly(sc: core.Scenario, arm: str, a, work: Path) -> core.ArmResult:
         records = read_gps_input(mcap)
         notes.append(f"companion MCAP: {len(records)} GPS_INPUT records")
     return _finish(sc, arm, log, records, notes)
+
+
+def _sets(a) -> list[str]:
+    return COMPANION_SETS + list(a.companion_set or [])
 
 
 def _finish(sc, arm, log, records, notes) -> core.ArmResult:
@@ -483,7 +490,7 @@ def write_results(results: list[core.ArmResult], a, argv: list[str], started: st
         f"Started {started}; machine before: {load_before}; after: {after or machine_state()}.  ",
         f"Both arms: {', '.join(f'{k}={v}' for k, v in VEHICLE_PARAMS.items())}. Arm B adds "
         f"{', '.join(f'{k}={v}' for k, v in params_b.items())}"
-        + (f" and `--set {' '.join(a.companion_set)}`" if a.companion_set else "") + ".\n",
+        + f" and `--set {' '.join(_sets(a))}`" + ".\n",
         "EKF error = GLOBAL_POSITION_INT vs SIMSTATE truth interpolated to its time_boot_ms (SIMSTATE stamped with "
         "the newest time_boot_ms on the stream, SIMSTATE and ATTITUDE both at 50 Hz: <= 20 ms). Times after the "
         "denial are from the moment SIM_GPS1_ENABLE=0 was sent. An EKF failsafe switches to LAND (FS_EKF_ACTION default): "
