@@ -5,17 +5,21 @@ models 0.12 s for a u-blox M8, 0.22 s for older ones; its SITL u-blox lags 0.1 s
 that takes the fix as current explains the lag with its other states: at 8 m/s a 0.1 s lag is a 0.8 m position
 offset that turns with every manoeuvre, and the error-state KF absorbs it into tilt and accelerometer bias. Those
 wrong states cost nothing while fixes arrive and drive the drift once they stop: on a simulated noise-free square
-an unmodelled 0.1 s lag makes 35 m after 30 s of dead reckoning instead of 2 m (tests/nav/test_gnss_lag.py).
+an unmodelled 0.1 s lag makes 30 m after 30 s of dead reckoning instead of 2 m (tests/nav/test_gnss_lag.py).
 A lag modelled 0.02 s off still costs 5-8 m, so it is measured rather than assumed.
 
 Method: the horizontal velocity change between two consecutive GNSS velocities, ``v(t2) - v(t1)``, is compared
 with the integral of the IMU specific force resolved in NED over the same interval shifted by a candidate lag tau,
 ``V(t2 - tau) - V(t1 - tau)`` (gravity and Coriolis have next to no horizontal part). It is resolved with the
 autopilot's attitude interpolated to each sample's time, which does not depend on the lag (the INS's own attitude
-does: it absorbs a mis-modelled lag into tilt). The squared residual is summed per candidate on a grid
-(``step_s``) with exponential forgetting (``tau_s``); the estimate is the grid minimum refined by a parabola through
-its neighbours. It is valid once the forgotten sum of squared GNSS velocity changes exceeds ``min_dv_mps``^2 (a
-hover does not observe a lag) over at least ``min_pairs`` pairs, and the minimum is inside the grid.
+does: it absorbs a mis-modelled lag into tilt). A heading error of the attitude rotates the IMU's velocity changes,
+and in a steady turn a rotation is indistinguishable from a lag (0.8 deg at 0.4 rad/s looks like 0.035 s), so each
+candidate is scored after the best common rotation: with forgotten sums (``tau_s``) C = sum dv_g conj(dv_i), E_g,
+E_i of the velocity changes as complex N + iE numbers, the residual is E_g + E_i - 2 |C| (the rotation is arg C;
+cf. the navigator's autopilot heading check). Candidates are on a grid (``step_s``); the estimate is the grid
+minimum refined by a parabola through its neighbours. It is valid once the forgotten sum of squared GNSS velocity
+changes exceeds ``min_dv_mps``^2 (a hover does not observe a lag) over at least ``min_pairs`` pairs, the minimum is
+inside the grid and its standard error is within ``max_sigma_s``.
 
 The IMU integral is held the way the strapdown INS integrates (each sample over the interval before it), so the
 estimate is the lag the INS itself needs. Pure: no I/O, no clocks.
@@ -38,13 +42,14 @@ class GnssLagConfig:
     min_dv_mps: float = 2.0  # excitation: sqrt of the forgotten sum of |dv_gnss|^2 before the estimate is used
     min_pairs: int = 20
     max_pair_dt_s: float = 1.1  # consecutive GNSS velocities further apart than this are not paired
+    max_sigma_s: float = 0.01  # the estimate is used only while its standard error is within this
     relearn_s: float = 0.01  # the navigator re-learns tilt and accelerometer bias when the lag in use moves further
 
     def __post_init__(self) -> None:
         if not (0 < self.step_s <= self.max_lag_s and self.tau_s > 0 and self.min_dv_mps >= 0
-                and self.min_pairs >= 1 and self.max_pair_dt_s > 0):
+                and self.min_pairs >= 1 and self.max_pair_dt_s > 0 and self.max_sigma_s > 0 and self.relearn_s >= 0):
             raise ValueError("GnssLagConfig: need 0 < step_s <= max_lag_s, tau_s > 0, min_dv_mps >= 0, "
-                             "min_pairs >= 1, max_pair_dt_s > 0")
+                             "min_pairs >= 1, max_pair_dt_s > 0, max_sigma_s > 0, relearn_s >= 0")
 
 
 class GnssLagEstimator:
@@ -60,8 +65,10 @@ class GnssLagEstimator:
     def __init__(self, config: GnssLagConfig | None = None) -> None:
         self.config = c = config or GnssLagConfig()
         self.taus_s = np.arange(0.0, c.max_lag_s + 0.5 * c.step_s, c.step_s)
-        self._sse = np.zeros(len(self.taus_s))
+        self._cross = np.zeros(len(self.taus_s), dtype=complex)  # forgotten sums of dv_gnss conj(dv_imu(tau))
+        self._ei = np.zeros(len(self.taus_s))  # ... of |dv_imu(tau)|^2
         self._excitation = 0.0
+        self._n_w = 0.0  # forgotten number of pairs
         self._pairs = 0
         self._t_sum: float | None = None  # time of the last residual added (forgetting)
         self._hist: deque[tuple[float, float, float]] = deque()  # (t, integral N, integral E) of the specific force
@@ -129,11 +136,14 @@ class GnssLagEstimator:
             a, b = t1 - self.taus_s, t2 - self.taus_s
             dvn_i = np.interp(b, h[:, 0], h[:, 1]) - np.interp(a, h[:, 0], h[:, 1])
             dve_i = np.interp(b, h[:, 0], h[:, 2]) - np.interp(a, h[:, 0], h[:, 2])
-            dvn_g, dve_g = vn2 - vn1, ve2 - ve1
+            zg = complex(vn2 - vn1, ve2 - ve1)
+            zi = dvn_i + 1j * dve_i
             w = 1.0 if self._t_sum is None else math.exp(-max(0.0, t2 - self._t_sum) / c.tau_s)
             self._t_sum = t2
-            self._sse = self._sse * w + (dvn_g - dvn_i) ** 2 + (dve_g - dve_i) ** 2
-            self._excitation = self._excitation * w + dvn_g**2 + dve_g**2
+            self._cross = self._cross * w + zg * np.conj(zi)
+            self._ei = self._ei * w + np.abs(zi) ** 2
+            self._excitation = self._excitation * w + abs(zg) ** 2
+            self._n_w = self._n_w * w + 1.0
             self._pairs += 1
 
     @property
@@ -144,19 +154,57 @@ class GnssLagEstimator:
     @property
     def lag_s(self) -> float | None:
         """The lag with the least forgotten squared residual (parabolic refinement), or None: not yet observable,
-        or the minimum is at the grid's upper end (the lag is beyond it); at its lower end the lag is 0."""
+        its standard error (:meth:`sigma_s`) above ``max_sigma_s``, or the minimum at the grid's upper end (the lag
+        is beyond it); at its lower end the lag is 0."""
+        est = self._estimate()
+        return None if est is None or not est[1] <= self.config.max_sigma_s else est[0]
+
+    def sigma_s(self) -> float | None:
+        """Standard error of the estimate: least squares in tau, sigma^2 = 2 s2 / a with s2 the residual variance
+        per pair (minimum sum / forgotten count) and a the curvature of the residual sum over +-0.05 s. A flat
+        curve (noise above the signal: the bundled sample's noisy 5 Hz velocities on its gentle legs) is large."""
+        est = self._estimate()
+        return None if est is None else est[1]
+
+    def _estimate(self) -> tuple[float, float] | None:
         if not self.observable:
             return None
-        s = self._sse
+        s = self._sse()
+        n = len(s)
         k = int(np.argmin(s))
-        if k == 0:
-            return 0.0
-        if k == len(s) - 1:
+        if k == n - 1:
             return None
-        den = s[k - 1] - 2.0 * s[k] + s[k + 1]
-        off = 0.5 * (s[k - 1] - s[k + 1]) / den if den > 0 else 0.0
-        return float(self.taus_s[k] + max(-0.5, min(0.5, off)) * self.config.step_s)
+        step = self.config.step_s
+        if k == 0:
+            lag = 0.0
+        else:
+            den = s[k - 1] - 2.0 * s[k] + s[k + 1]
+            off = 0.5 * (s[k - 1] - s[k + 1]) / den if den > 0 else 0.0
+            lag = float(self.taus_s[k] + max(-0.5, min(0.5, off)) * step)
+        h = max(1, int(round(0.05 / step)))
+        lo, hi = max(0, k - h), min(n - 1, k + h)
+        if k - lo == hi - k:
+            a = (s[lo] + s[hi] - 2.0 * s[k]) / ((hi - k) * step) ** 2
+        else:
+            j = hi if hi - k >= k - lo else lo
+            a = 2.0 * (s[j] - s[k]) / ((j - k) * step) ** 2
+        if not a > 0:
+            return lag, math.inf
+        s2 = s[k] / max(self._n_w - 1.0, 1.0)
+        return lag, math.sqrt(2.0 * s2 / a)
+
+    def _sse(self) -> np.ndarray:
+        """Per candidate lag, the forgotten sum of squared residuals after the best common heading rotation."""
+        return np.maximum(0.0, self._excitation + self._ei - 2.0 * np.abs(self._cross))
+
+    def heading_offset_rad(self) -> float | None:
+        """The rotation from the IMU's velocity changes to the GNSS's at the estimated lag (the attitude's heading
+        error), or None."""
+        lag = self.lag_s
+        if lag is None:
+            return None
+        return float(np.angle(self._cross[int(round(lag / self.config.step_s))]))
 
     def residual_curve(self) -> tuple[np.ndarray, np.ndarray]:
         """(candidate lags, forgotten sum of squared residuals): for diagnostics and tests."""
-        return self.taus_s.copy(), self._sse.copy()
+        return self.taus_s.copy(), self._sse()

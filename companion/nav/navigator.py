@@ -129,6 +129,10 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
             meta["resets"] = ", ".join(f"{k}={n}" for k, n in sorted(self.resets.items()))
         if self._reorder.dropped_future:
             meta["dropped_future_events"] = str(self._reorder.dropped_future)
+        if self._gnss_lag is not None:
+            sig = self._gnss_lag.sigma_s()
+            meta["gnss_lag_s"] = f"{self._gnss_delay_s():.3f}" + (
+                f" (measured, sigma {sig:.3f})" if self._gnss_lag.lag_s is not None else " (configured)")
         return meta
 
     def finish(self) -> list[Event]:
