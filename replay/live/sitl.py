@@ -59,9 +59,11 @@ COMPANION_PARAMS = {
     "EK3_SRC1_POSZ": 1,
     "EK3_SRC1_VELZ": 3,
 }
-#: arm B's companion settings besides --companion-set: the GNSS latency measured online (companion.nav.gnss_lag), and
-#: no fix while armed beside a healthy GPS1 (no GPS_AUTO_SWITCH switch to GPS2 when GPS1 is lost)
-COMPANION_SETS = ["navigator.gnss_delay_estimate=true", "inject.backup_fix_when_armed=false"]
+#: arm B's companion settings besides --companion-set: the GNSS latency measured online (companion.nav.gnss_lag), the
+#: autopilot's heading fused (SITL's gyros drift, SIM_DRIFT_SPEED), and no fix while armed beside a healthy GPS1 (no
+#: GPS_AUTO_SWITCH switch to GPS2 when GPS1 is lost)
+COMPANION_SETS = ["navigator.gnss_delay_estimate=true", "navigator.fuse_attitude_yaw=true",
+                  "inject.backup_fix_when_armed=false"]
 STREAMS_HZ = {  # requested on the harness's own link (SERIAL0) with SET_MESSAGE_INTERVAL
     "GLOBAL_POSITION_INT": 25, "SIMSTATE": 50, "ATTITUDE": 50, "LOCAL_POSITION_NED": 10, "GPS_RAW_INT": 5,
     "GPS2_RAW": 5, "EKF_STATUS_REPORT": 2, "SYS_STATUS": 1, "HEARTBEAT": 1,
@@ -516,7 +518,7 @@ def write_results(results: list[core.ArmResult], a, argv: list[str], started: st
     text += ["### Arming and notes\n", core.arming_lines(results), ""]
     if png.exists():
         text += [f"![EKF error after the denial]({png.name})", ""]
-    write_section(f"sitl-ab{a.tag}", "\n".join(text), RESULTS_MD)
+    write_section(RESULTS_MD, f"sitl-ab{a.tag}", "\n".join(text), "ArduPilot SITL A/B: ArduPilot alone vs ArduPilot + companion")
     (RESULTS / f"sitl_ab{a.tag}.json").write_text(json.dumps([_summary(r) for r in results], indent=1))
 
 
