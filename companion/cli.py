@@ -188,7 +188,8 @@ def cmd_replay(args) -> int:
     source = FileSource(log)
     out.parent.mkdir(parents=True, exist_ok=True)
     utc = find_utc_offset(log)  # a look-ahead, so that the record is in UTC from its first message on
-    recorder = Recorder(out, clock=RecordClock(*utc) if utc else RecordClock())
+    # a replay's product is its record: a write error ends it (exit 2, naming the file)
+    recorder = Recorder(out, clock=RecordClock(*utc) if utc else RecordClock(), raise_errors=True)
     try:
         pipeline = _build_pipeline(recorder, args)
     except UsageError:
@@ -266,8 +267,9 @@ def cmd_run(args) -> int:
             raise UsageError(str(err)) from None
     rec_kw = dict(flush_interval_s=config.record.flush_interval_s, fsync=config.record.fsync,
                   clock=None, live_view=live_view)  # live records stay on boot time (see RecordClock)
-    if config.record.segment_s > 0:
-        recorder = RotatingRecorder(out, segment_s=config.record.segment_s, **rec_kw)
+    if config.record.segment_s > 0 or config.record.max_total_mb > 0:
+        recorder = RotatingRecorder(out, segment_s=config.record.segment_s,
+                                    max_total_bytes=int(config.record.max_total_mb * 1e6), **rec_kw)
     else:
         recorder = Recorder(out, **rec_kw)
     try:
@@ -294,6 +296,12 @@ def cmd_run(args) -> int:
     _print_summary(runtime, runtime.pipeline, recorder.path, stopped_by, wall_time_s() - t0)
     for path in getattr(recorder, "paths", [])[:-1]:
         print(f"record       {path} (earlier segment)")
+    if getattr(recorder, "deleted", None):
+        print(f"record       {len(recorder.deleted)} oldest segments deleted (record.max_total_mb)")
+    if recorder.write_error is not None:
+        err = recorder.write_error
+        print(f"record       stopped: cannot write {err.filename}: {err.strerror} "
+              f"({recorder.dropped_after_error} messages not recorded)")
     for line in runtime.summary_lines():
         print(line)
     # a service stopped on purpose (SIGTERM, --duration) exits cleanly

@@ -204,8 +204,6 @@ def test_replay_out_same_as_input_tlog_refused(clean, tmp_path):
     assert one_line_error(res), res.stderr[-300:]
 
 
-@pytest.mark.xfail(**XFAIL, reason="a disk error names no path: 'companion: error: : No space left on device' "
-                   "(cli.main prints OSError.filename, None for os.write)")
 def test_disk_error_names_the_path(clean, tmp_path):
     log = tmp_path / "a.bin"
     log.write_bytes(clean["ac33dev-inflight-gps-loss@0%"].data)
