@@ -1,0 +1,99 @@
+"""The disk: a budget that deletes the oldest segments, write errors that stop the recording and nothing else."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+
+import numpy as np
+import pytest
+
+from companion.config import ConfigError, load_config
+from companion.events import ImuSample
+from companion.record import Recorder, RotatingRecorder, summarize
+
+BUDGET_BYTES = 1_000_000
+
+
+def _imu(rng, t_s: float) -> ImuSample:  # noisy values: the record does not compress to nothing
+    a, g = rng.normal(0.0, 1.0, 3), rng.normal(0.0, 0.1, 3)
+    return ImuSample(t_s=t_s, accel_frd_mps2=tuple(map(float, a)), gyro_frd_radps=tuple(map(float, g)), imu_index=0)
+
+
+def _mcap_bytes(d) -> int:
+    return sum(p.stat().st_size for p in d.glob("live-*.mcap"))
+
+
+@pytest.mark.parametrize("segment_s", [0.0, 30.0])
+def test_budget_deletes_the_oldest_segments_and_the_total_stays_under_it(tmp_path, segment_s):
+    other = tmp_path / "live.bin"  # an input beside the record, and a file named like a record: never touched
+    other.write_bytes(b"not ours")
+    stranger = tmp_path / "live-x.mcap"
+    stranger.write_bytes(b"nor this")
+    rng = np.random.default_rng(1)
+    rec = RotatingRecorder(tmp_path / "live.mcap", segment_s=segment_s, max_total_bytes=BUDGET_BYTES)
+    rec.add_metadata("source", {"kind": "live"})
+    n, worst = 30_000, 0  # 10 min at 50 Hz: about 4x the budget
+    for k in range(n):
+        rec.write(_imu(rng, k * 0.02))
+        if k % 500 == 0:
+            worst = max(worst, _mcap_bytes(tmp_path) - stranger.stat().st_size)
+    rec.close()
+    worst = max(worst, _mcap_bytes(tmp_path) - stranger.stat().st_size)
+    written = [int(p.stem.rsplit("-", 1)[1]) for p in rec.paths + rec.deleted]
+    assert sorted(written) == list(range(len(written))) and len(rec.deleted) >= 3, (rec.paths, rec.deleted)
+    kept = [int(p.stem.rsplit("-", 1)[1]) for p in rec.paths]
+    assert max(int(p.stem.rsplit("-", 1)[1]) for p in rec.deleted) < min(kept)  # the oldest went
+    assert kept == list(range(min(kept), len(written)))  # the newest are all there
+    assert all(not p.exists() for p in rec.deleted) and all(p.exists() for p in rec.paths)
+    assert worst <= BUDGET_BYTES, f"{worst} bytes on disk with a budget of {BUDGET_BYTES}"
+    assert other.read_bytes() == b"not ours" and stranger.read_bytes() == b"nor this"
+    last = summarize(rec.paths[-1])
+    assert last.finalised and last.end_ns == round((n - 1) * 0.02 * 1e9)  # the newest message is kept
+    assert all(summarize(p).finalised and dict(summarize(p).metadata)["source"] == {"kind": "live"} for p in rec.paths)
+
+
+def test_budget_setting_is_range_checked():
+    base = {"link.connect": "udpin:127.0.0.1:14550"}
+    assert load_config(None, {**base, "record.max_total_mb": 500}).record.max_total_mb == 500.0
+    for bad in (-1, 0.5, 1e300, float("nan"), "big"):
+        with pytest.raises(ConfigError, match="record.max_total_mb"):
+            load_config(None, {**base, "record.max_total_mb": bad})
+
+
+def test_a_file_that_cannot_be_written_from_the_start(tmp_path, capsys):
+    rec = Recorder("/dev/full")  # the live default: stop recording, raise nothing
+    for k in range(100):
+        rec.write(_imu(np.random.default_rng(k), k * 0.02))
+    rec.flush()
+    rec.close()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "/dev/full" in err[0] and "No space left" in err[0], err
+    assert rec.write_error.filename == "/dev/full" and rec.dropped_after_error == 100
+    missing = Recorder(tmp_path / "no" / "dir.mcap")
+    assert missing.write_error is not None and str(tmp_path / "no" / "dir.mcap") in capsys.readouterr().err
+    missing.close()
+    with pytest.raises(OSError) as exc:  # a replay: the record is the product, the error is raised, with the path
+        Recorder("/dev/full", raise_errors=True)
+    assert exc.value.filename == "/dev/full" and exc.value.errno == 28
+
+
+def test_a_full_disk_leaves_a_file_that_reads_to_its_end(tmp_path, capsys):
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mnt)], capture_output=True).returncode:
+        pytest.skip("cannot mount a tmpfs here (needs root)")
+    try:
+        rng = np.random.default_rng(2)
+        rec = RotatingRecorder(mnt / "live.mcap", segment_s=10.0, chunk_size=4096)
+        for k in range(20_000):
+            rec.write(_imu(rng, k * 0.01))
+        rec.close()
+        assert rec.write_error is not None and rec.write_error.errno == 28 and rec.dropped_after_error > 0
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "recording stopped" in err[0] and str(rec.write_error.filename) in err[0], err
+        s = summarize(rec.write_error.filename)
+        assert not s.finalised and s.message_count > 0
+        assert s.readable_bytes == s.size_bytes, s.note  # the half-written chunk was cut off
+    finally:
+        subprocess.run(["umount", str(mnt)], capture_output=True)
