@@ -97,3 +97,31 @@ def test_a_full_disk_leaves_a_file_that_reads_to_its_end(tmp_path, capsys):
         assert s.readable_bytes == s.size_bytes, s.note  # the half-written chunk was cut off
     finally:
         subprocess.run(["umount", str(mnt)], capture_output=True)
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+def test_inspect_finds_a_damaged_chunk(tmp_path, compression):
+    from mcap.reader import make_reader
+
+    from companion.record import format_summary
+
+    path = tmp_path / "r.mcap"
+    rng = np.random.default_rng(3)
+    with Recorder(path, compression=compression, chunk_size=20_000) as rec:
+        for k in range(3000):
+            rec.write(_imu(rng, k * 0.02))
+    whole = summarize(path)
+    assert whole.finalised and not whole.damaged and whole.chunk_count > 5
+    with open(path, "rb") as f:
+        chunks = make_reader(f).get_summary().chunk_indexes
+    data = bytearray(path.read_bytes())
+    for c in (chunks[1], chunks[-2]):  # a byte of the records (past the chunk's own header) flipped
+        data[c.chunk_start_offset + c.chunk_length - 40] ^= 0x10
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    s = summarize(bad)
+    assert s.finalised and len(s.damaged_chunks) == 2, s.damaged_chunks
+    assert all(d.startswith(f"byte {c.chunk_start_offset}:") for d, c in zip(s.damaged_chunks, (chunks[1], chunks[-2])))
+    first = format_summary(s).splitlines()[0]
+    assert f"2 of {whole.chunk_count} chunks DAMAGED" in first and not first.endswith(", finalised)"), first
+    assert not summarize(bad, check_crcs=False).damaged  # the check can be skipped
