@@ -113,7 +113,7 @@ def _stage_metadata(stage) -> dict[str, str]:
     return {k: str(v) for k, v in stage.metadata().items() if v is not None and v != ""}
 
 
-def _print_summary(source, pipeline, out: Path, stopped_by: str | None, elapsed_s: float) -> None:
+def _print_summary(source, pipeline, out: Path, stopped_by: str | None, elapsed_s: float, *, recorded: bool = True) -> None:
     print(f"source       {source.info.kind} {source.info.location}")
     for k, v in source.info.details.items():
         print(f"  {k}: {v}")
@@ -129,7 +129,7 @@ def _print_summary(source, pipeline, out: Path, stopped_by: str | None, elapsed_
     rate = f"{n / elapsed_s:,.0f} events/s" if elapsed_s > 0 else "-"
     print(f"processed    {n} events in {elapsed_s:.2f} s wall time ({rate})")
     if stopped_by:
-        print(f"stopped by   {stopped_by}: record finalised with what was read so far")
+        print(f"stopped by   {stopped_by}" + (": record finalised with what was read so far" if recorded else ""))
     print(f"record       {out}")
 
 
@@ -293,7 +293,8 @@ def cmd_run(args) -> int:
         _finish_record(recorder, runtime, runtime.pipeline, meta, stopped_by)
         if live_view is not None:
             live_view.close()
-    _print_summary(runtime, runtime.pipeline, recorder.path, stopped_by, wall_time_s() - t0)
+    _print_summary(runtime, runtime.pipeline, recorder.path, stopped_by, wall_time_s() - t0,
+                   recorded=recorder.write_error is None)
     for path in getattr(recorder, "paths", [])[:-1]:
         print(f"record       {path} (earlier segment)")
     if getattr(recorder, "deleted", None):

@@ -21,6 +21,10 @@ in progress:
   demand (e.g. from a wall-clock timer in the live loop when messages stop arriving).
 * ``close()`` writes the summary section and footer (``Writer.finish()``); it is idempotent and runs from
   ``finally`` / ``with`` blocks, so SIGTERM/SIGINT handled by cancelling the asyncio task finalise the file.
+* A write error (full disk, read-only or removed drive) cuts the file back to its last whole record, so it
+  reads to its end like a killed writer's, and stops the recording: by default with one line on stderr
+  naming the file and nothing raised (the live companion navigates on), with ``raise_errors`` as one OSError
+  naming it (a replay, whose product is the record).
 
 :func:`companion.record.inspect.summarize` reads a finalised file through its summary section and a
 killed one by streaming records up to the truncation point.
