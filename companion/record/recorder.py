@@ -228,7 +228,7 @@ class Recorder:
 
         ``topic`` defaults to the class's ``topic`` attribute; the log time is ``item.t_s``.
         """
-        if self.write_error is not None:  # recording stopped: not even encoded
+        if self.write_error is not None and self.live_view is None:  # recording stopped: not even encoded
             self.dropped_after_error += 1
             return
         entry = self._dc_channels.get((type(item), topic))
@@ -251,7 +251,7 @@ class Recorder:
 
     def write_dict(self, topic: str, schema_name: str, json_schema: Mapping, payload: Mapping, t_s: float) -> None:
         """Record a plain dict on ``topic`` under an explicitly given JSON schema (registered once per topic)."""
-        if self.write_error is not None:
+        if self.write_error is not None and self.live_view is None:
             self.dropped_after_error += 1
             return
         channel_id = self._named_channels.get(topic)
@@ -281,7 +281,7 @@ class Recorder:
         matrix, KNOWN (3) otherwise, UNKNOWN (0) for None. ``color_rgba`` (0..1) sets the track colour;
         ``heading_rad`` is clockwise from north. Non-finite lat/lon/alt raise ValueError.
         """
-        if self.write_error is not None:
+        if self.write_error is not None and self.live_view is None:
             self.dropped_after_error += 1
             return
         if not (math.isfinite(lat_deg) and math.isfinite(lon_deg) and math.isfinite(alt_m)):
@@ -412,8 +412,10 @@ class Recorder:
               f"(navigation and injection go on; {self.path} is not finalised)", file=sys.stderr, flush=True)
 
     def _add(self, channel_id: int, t_ns: int, data: bytes) -> None:
-        if self.write_error is not None:
+        if self.write_error is not None:  # the live view (Foxglove) goes on without the file
             self.dropped_after_error += 1
+            if self.live_view is not None and not self._closed:
+                self._publish(channel_id, self.clock.log_ns(t_ns) if self.clock is not None else t_ns, data)
             return
         if self._closed:
             raise RecordError(f"{self.path}: the recorder is closed")
@@ -425,8 +427,7 @@ class Recorder:
                 t_ns = self.clock.log_ns(t_ns)
             self._writer.add_message(channel_id, t_ns, data, t_ns, seq & 0xFFFFFFFF)
             if self.live_view is not None:
-                name = self._channel_schema[channel_id]
-                self.live_view.publish(self._channel_topic[channel_id], name, self._schemas[name][1], t_ns, data)
+                self._publish(channel_id, t_ns, data)
             self._chunk_bytes += _MESSAGE_OVERHEAD + len(data)
             t0 = self._chunk_t0
             if t0 is None:
@@ -437,6 +438,10 @@ class Recorder:
             self._busy = False
         if self._close_requested:
             self.close()
+
+    def _publish(self, channel_id: int, t_ns: int, data: bytes) -> None:
+        name = self._channel_schema[channel_id]
+        self.live_view.publish(self._channel_topic[channel_id], name, self._schemas[name][1], t_ns, data)
 
     def _close_chunk(self) -> None:
         # finalises the chunk (if it has messages) and writes it and its indexes

@@ -125,3 +125,43 @@ def test_inspect_finds_a_damaged_chunk(tmp_path, compression):
     first = format_summary(s).splitlines()[0]
     assert f"2 of {whole.chunk_count} chunks DAMAGED" in first and not first.endswith(", finalised)"), first
     assert not summarize(bad, check_crcs=False).damaged  # the check can be skipped
+
+
+def test_the_live_view_goes_on_after_a_write_error(tmp_path, capsys):
+    class View:
+        def __init__(self):
+            self.got = []
+
+        def publish(self, topic, schema_name, schema, t_ns, data):
+            self.got.append((topic, t_ns))
+
+    view = View()
+    rec = Recorder(tmp_path / "r.mcap", chunk_size=2000, live_view=view)
+    rng = np.random.default_rng(4)
+    for k in range(50):
+        rec.write(_imu(rng, k * 0.02))
+    full = os.open("/dev/full", os.O_WRONLY)  # from now on every write fails with ENOSPC
+    os.dup2(full, rec._file._fd)
+    os.close(full)
+    for k in range(50, 200):
+        rec.write(_imu(rng, k * 0.02))
+    rec.write_location("/map/x", 4.0, 1.0, 2.0, 3.0)
+    rec.close()
+    assert rec.write_error is not None and rec.dropped_after_error > 100
+    assert [t for _, t in view.got[:200]] == [round(k * 0.02 * 1e9) for k in range(200)]
+    assert view.got[-1] == ("/map/x", 4_000_000_000)
+    assert len([line for line in capsys.readouterr().err.splitlines() if "recording stopped" in line]) == 1
+
+
+def test_run_with_a_budget_writes_segments(tmp_path):
+    import socket
+    import sys
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    res = subprocess.run([sys.executable, "-m", "companion.cli", "run", "--connect", f"udpin:127.0.0.1:{port}",
+                          "--out", str(tmp_path / "live.mcap"), "--duration", "1", "--set", "record.max_total_mb=1",
+                          "-q"], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr[-600:]
+    assert summarize(tmp_path / "live-000.mcap").finalised and not (tmp_path / "live.mcap").exists()
