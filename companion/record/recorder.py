@@ -156,6 +156,7 @@ class Recorder:
         whose product is the record). By default (the live companion) it stops the recording instead: one line on
         stderr naming the file, every later message dropped and counted, nothing raised -- also when the file
         cannot even be created, so navigation and injection go on whatever the disk does.
+    :param announce_errors: False: not even that line (a caller that retries says it itself).
     """
 
     def __init__(
@@ -170,6 +171,7 @@ class Recorder:
         clock: RecordClock | None = None,
         live_view: Any = None,
         raise_errors: bool = False,
+        announce_errors: bool = True,
     ):
         if compression not in _COMPRESSION:
             raise ValueError(f"compression must be one of {sorted(_COMPRESSION)}, not {compression!r}")
@@ -179,6 +181,7 @@ class Recorder:
             raise ValueError("chunk_size and flush_interval_s must be positive")
         self.path = Path(path)
         self._raise = raise_errors
+        self._announce = announce_errors
         self._closed = True  # until the file is open, close() has nothing to do
         #: the OS error that stopped recording (a full disk, a removed drive): the recorder then drops every
         #: later message (counted in ``dropped_after_error``) and never raises again, so a write error does not stop
@@ -408,8 +411,9 @@ class Recorder:
         self.write_error = OSError(err.errno, why, str(self.path))
         if self._raise:
             raise self.write_error from err
-        print(f"companion: error: recording stopped, cannot write {self.path}: {why} "
-              f"(navigation and injection go on; {self.path} is not finalised)", file=sys.stderr, flush=True)
+        if self._announce:
+            print(f"companion: error: recording stopped, cannot write {self.path}: {why} "
+                  f"(navigation and injection go on; {self.path} is not finalised)", file=sys.stderr, flush=True)
 
     def _add(self, channel_id: int, t_ns: int, data: bytes) -> None:
         if self.write_error is not None:  # the live view (Foxglove) goes on without the file

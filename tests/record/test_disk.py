@@ -165,3 +165,47 @@ def test_run_with_a_budget_writes_segments(tmp_path):
                           "-q"], capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr[-600:]
     assert summarize(tmp_path / "live-000.mcap").finalised and not (tmp_path / "live.mcap").exists()
+
+
+def test_a_segmented_record_resumes_once_the_disk_has_room(tmp_path, capsys, caplog):
+    from companion.record.rotating import RETRY_MIN_S
+
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", str(mnt)], capture_output=True).returncode:
+        pytest.skip("cannot mount a tmpfs here (needs root)")
+    try:
+        ballast = mnt / "ballast"  # somebody else's file fills the disk
+        fd = os.open(ballast, os.O_WRONLY | os.O_CREAT)
+        try:
+            while os.write(fd, b"\0" * 4096):
+                pass
+        except OSError:
+            pass
+        finally:
+            os.close(fd)
+        os.truncate(ballast, max(0, ballast.stat().st_size - 40_000))  # room for a few chunks only
+        rng = np.random.default_rng(5)
+        rec = RotatingRecorder(mnt / "live.mcap", segment_s=60.0, chunk_size=4096)
+        t_freed = None
+        for k in range(30_000):  # 300 s at 100 Hz
+            t = k * 0.01
+            if rec.write_error is not None and t_freed is None:
+                t_failed, t_freed = t, t + 25.0
+            if t_freed is not None and ballast.exists() and t >= t_freed:
+                ballast.unlink()  # the disk has room again
+            rec.write(_imu(rng, t))
+        rec.close()
+        assert t_freed is not None and not ballast.exists(), "the disk did not fill"
+        assert rec.write_error is None and len(rec.write_errors) == 1
+        err = [line for line in capsys.readouterr().err.splitlines() if "recording stopped" in line]
+        assert len(err) == 1, err  # the quiet retries say nothing; the resumption says so once
+        assert [r.message for r in caplog.records if "resumed" in r.message][:1], caplog.text
+        after = [summarize(p) for p in rec.paths[1:]]
+        assert after and all(s.finalised for s in after)
+        resumed_s = after[0].start_ns / 1e9
+        assert t_freed <= resumed_s <= t_freed + 4 * RETRY_MIN_S  # tried again within the back-off
+        assert after[-1].end_ns == round(29_999 * 0.01 * 1e9)  # recording to the end
+        assert rec.dropped_after_error == round((resumed_s - t_failed) / 0.01)
+    finally:
+        subprocess.run(["umount", str(mnt)], capture_output=True)
