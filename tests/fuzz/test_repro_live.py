@@ -139,8 +139,6 @@ def _disk_full(path: Path) -> bool:
     return st.f_bavail == 0
 
 
-@pytest.mark.xfail(**XFAIL, reason="a full disk stops the vehicle's navigation: the record's write error (ENOSPC) "
-                   "propagates out of the loop and `run` exits 2 -- GPS_INPUT stops")
 def test_full_disk_keeps_navigating_and_injecting(tmp_path, tiny_disk):
     peer = Peer("tcp")
     out = tiny_disk / "live.mcap"
