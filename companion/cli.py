@@ -10,6 +10,7 @@ import argparse
 import asyncio
 import json
 import os
+import logging
 import signal
 import sys
 from pathlib import Path
@@ -70,6 +71,8 @@ async def _drive(source, pipeline, recorder, *, realtime_factor, bar) -> str | N
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, on_signal, sig)
+    logging.getLogger("companion.replay").debug("replaying %s (SIGINT/SIGTERM: stop, finalise the record)",
+                                               source.info.location)
 
     def on_progress(src, n):
         p = src.progress()

@@ -128,14 +128,22 @@ def test_missing_file_and_bad_url():
 def test_replay_sigterm_finalises_record(tmp_path):
     out = tmp_path / "t.mcap"
     proc = subprocess.Popen(
-        [*COMPANION, "replay", require(LOG_TLOG), "--out", out, "--realtime", "20"],
+        [*COMPANION, "replay", require(LOG_TLOG), "--out", out, "--realtime", "20", "-v"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
     )
-    time.sleep(4.0)
+    head = []  # wait until the replay runs with its signal handlers (start-up takes seconds on a loaded machine)
+    while not any("replaying" in line for line in head):
+        line = proc.stderr.readline()
+        assert line, f"companion replay ended before replaying: {''.join(head)}"
+        head.append(line)
+    deadline = time.monotonic() + 120  # ... and its first chunk is on disk: events are flowing
+    while not (out.exists() and out.stat().st_size > 4096) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
     proc.send_signal(signal.SIGTERM)
-    stdout, stderr = proc.communicate(timeout=30)
+    stdout, stderr = proc.communicate(timeout=60)
+    stderr = "".join(head) + stderr
     assert proc.returncode == 130 and "Traceback" not in stderr
     assert "stopped by   SIGTERM" in stdout
     s = summarize(out)
