@@ -65,10 +65,11 @@ def udp_port_bound(port: int) -> bool:
         return False
 
 
-def _reorder_window_s() -> float:
-    from companion.nav.config import NavigatorConfig
+def _epoch_lag_s() -> float:
+    """How far a GPS_INPUT's epoch is behind the newest input it was built from (the injector's autopilot_lag_s)."""
+    from companion.inject.gps_input import InjectConfig
 
-    return float(NavigatorConfig().reorder_window_s)
+    return float(InjectConfig().autopilot_lag_s)
 
 
 def sample_playback():
@@ -240,7 +241,7 @@ class Peer:
         self.items = [it for it in self.playback.items if it.msg.get_type() in STREAMS and it.play_s >= start_s]
         self.start_s = start_s
         self.rng = np.random.default_rng(seed)
-        self.window_s = _reorder_window_s()
+        self.epoch_lag_s = _epoch_lag_s()
         self._listen = None
         self.sock: socket.socket | None = None
         if transport == "tcp":
@@ -363,7 +364,7 @@ class Peer:
             ned = LocalFrame(tr[0], tr[1], tr[2]).to_ned_m(d["lat_deg"], d["lon_deg"], d["alt_msl_m"])
             err = float(math.hypot(ned[0], ned[1]))
         lag = None
-        i = bisect.bisect_left(self._sent_boot, boot + self.window_s - 1e-6)
+        i = bisect.bisect_left(self._sent_boot, boot + self.epoch_lag_s - 1e-6)
         if i < len(self._sent_boot):
             lag = now - self._sent_mono[i]
         self.gps_inputs.append(GpsInputSeen(now, boot, d["fix_type"], d["h_acc_m"], err, lag))
