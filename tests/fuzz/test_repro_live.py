@@ -166,9 +166,6 @@ def test_full_disk_keeps_navigating_and_injecting(tmp_path, tiny_disk):
 
 
 # ----------------------------------------------------------------------------------------------- serial
-@pytest.mark.xfail(**XFAIL, reason="a serial device missing at start ends the service with exit 2 (parse_url "
-                   "checks the device exists, load_config turns it into a ConfigError) instead of a link that is "
-                   "retried until the device appears")
 def test_serial_device_missing_at_start_is_retried(tmp_path):
     dev = Path(f"/dev/ttyCOMPFUZZ{os.getpid()}")
     if dev.exists() or dev.is_symlink():
