@@ -351,6 +351,8 @@ class Injector(Stage):
             return out
         if not _finite(s.t_s):
             return out + self._drop(0.0, "non-finite time")
+        if -math.inf < self._newest_input_t < s.t_s - c.max_lag_s:  # a state is built from inputs: ahead is corrupt
+            return out + self._drop(s.t_s, "time ahead of every input")
         if self._last_state_t is not None and s.t_s <= self._last_state_t:
             return out + self._drop(s.t_s, "time not after the previous state")
         self._last_state_t = s.t_s
@@ -403,10 +405,10 @@ class Injector(Stage):
         vn, ve = (fx[4], fx[5]) if fx[4] is not None else (s.vel_n_mps, s.vel_e_mps)
         n, e, _ = LocalFrame(fx[1], fx[2], 0.0).to_ned_m(s.lat_deg, s.lon_deg, 0.0)
         dn, de = float(n) - vn * dt, float(e) - ve * dt
-        d2 = dn * dn + de * de
-        speed2 = s.vel_n_mps**2 + s.vel_e_mps**2
-        allowed2 = c.consistency_chi2 * (s.sigma_h_m**2 + fx[3] ** 2) + speed2 * c.receiver_lag_s**2
-        self._inconsistent = d2 > allowed2
+        # hypot: no square of a huge (finite) sigma or velocity overflows
+        lag_m = math.hypot(s.vel_n_mps, s.vel_e_mps) * c.receiver_lag_s
+        allowed_m = math.hypot(math.sqrt(c.consistency_chi2) * math.hypot(s.sigma_h_m, fx[3]), lag_m)
+        self._inconsistent = not math.hypot(dn, de) <= allowed_m
         if self._inconsistent:
             return "inconsistent with the receiver"
         return ""
@@ -491,7 +493,7 @@ def _encoded(rec: GpsInputRecord) -> tuple[Any, str]:
         try:
             struct.pack("<" + code, getattr(msg, name))
         except (struct.error, OverflowError, TypeError):
-            return None, f"{name} {getattr(msg, name)!r} does not fit its wire type"
+            return None, f"{name} does not fit its wire type"
     return msg, ""
 
 
@@ -509,7 +511,7 @@ def _invalid(s: FusedState, c: InjectConfig, check_alt: bool = True) -> str:
     if not _finite(s.vel_n_mps, s.vel_e_mps, s.vel_d_mps):
         return "non-finite velocity"
     vd = s.vel_d_mps if check_alt else 0.0  # an ignored vertical channel is not judged
-    if math.sqrt(s.vel_n_mps**2 + s.vel_e_mps**2 + vd**2) > c.max_speed_mps:
+    if math.hypot(s.vel_n_mps, s.vel_e_mps, vd) > c.max_speed_mps:
         return f"speed above {c.max_speed_mps:g} m/s"
     if not (_finite(s.sigma_h_m, s.sigma_v_m) and s.sigma_h_m > 0 and s.sigma_v_m > 0):
         return "no valid covariance"

@@ -405,3 +405,40 @@ def test_a_record_that_cannot_be_encoded_is_not_built_in_shadow_mode_either():
     inj = Injector(InjectConfig(mode="shadow"))
     (bad,) = tick(inj, state(t_s=10.0, sigma_h=1e39))  # finite, but beyond float32
     assert isinstance(bad, InjectorDrop) and bad.reason.startswith("not encodable (hdop") and inj.built == 0
+
+
+EXTREME = [math.nan, math.inf, -math.inf, 1e300, -1e300, 1e39, -1e39, 4e16, -4e16, 2.0**64, -(2.0**63), 0.0, -0.0,
+           1e-300, 65536.0, 604800.0, -1.0]
+
+
+def test_any_field_at_any_value_is_dropped_or_clamped_never_raised():
+    """Seeded: states, receiver fixes and clocks with extreme values in one field each, in inject mode. Nothing
+    raises, and every message that left fits GPS_INPUT's wire types (it parsed back) with its stated week in uint16."""
+    import random
+
+    from companion.events import ImuSample
+
+    rng = random.Random(7)
+    wire = Wire()
+    inj = Injector(InjectConfig(mode="inject"), sender=lambda m: wire(m))
+    s_fields = ["t_s", "lat_deg", "lon_deg", "alt_msl_m", "vel_n_mps", "vel_e_mps", "vel_d_mps", "sigma_h_m",
+                "sigma_v_m", "yaw_rad"]
+    # a receiver fix's time is not mutated: the vehicle clock upstream refuses time outliers of inputs
+    f_fields = ["lat_deg", "lon_deg", "hdop", "h_acc_m", "v_acc_m", "vel_n_mps", "gps_tow_s"]
+    t = 10.0
+    for k in range(3000):
+        t += 0.1
+        kind = rng.random()
+        bad = rng.choice(EXTREME)
+        if kind < 0.1:
+            inj.process(SystemTime(t_s=t, unix_time_s=rng.choice([bad, 1.7e9])))
+        elif kind < 0.4:
+            f = replace(fix(t), gps_week=rng.choice([2357, 0, 65535, 70_000, -1]), gps_tow_s=1.0, h_acc_m=1.0)
+            inj.process(replace(f, **{rng.choice(f_fields): bad}) if rng.random() < 0.5 else f)
+        else:
+            st = state(t_s=t, vel_n_mps=0.0, vel_e_mps=0.0, vel_d_mps=0.0)
+            inj.process(ImuSample(t_s=t + 0.2, accel_frd_mps2=(0.0, 0.0, -9.8), gyro_frd_radps=(0.0,) * 3, imu_index=0))
+            inj.process(replace(st, **{rng.choice(s_fields): bad}) if rng.random() < 0.5 else st)
+    assert inj.sent == len(wire.msgs) > 100, inj.dropped
+    assert all(0 <= m.time_week <= 65535 and m.time_usec >= 0 for m in wire.msgs)
+    assert sum(inj.dropped.values()) > 100
