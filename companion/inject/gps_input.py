@@ -24,14 +24,15 @@ Field by field (what ArduPilot's AP_GPS_MAV driver and EKF3 do with it, observed
 
 Integrity: a state with a non-finite or out-of-range field, lat = lon = 0, an implausible speed, a
 non-positive or non-finite sigma, a field that does not fit its wire type, or a time not after the previous
-one is never sent; nor a *stale* state (more than ``max_lag_s`` behind the newest sensor event: a navigator
+one (or ahead of every input) is never sent; nor a *stale* state (more than ``max_lag_s`` behind the newest sensor event: a navigator
 catching up after a gap would otherwise emit a burst of old positions), nor one that disagrees with the real
 receiver. Every state is checked against the receiver's 3D fix nearest to it in time (newer or older, within
 ``consistency_window_s``), carried to the state's epoch at the fix's velocity (the state's when the fix has
 none): horizontal distance d with d^2 > ``consistency_chi2`` (sigma_state^2 + sigma_receiver^2) +
 (``receiver_lag_s`` |v|)^2 is a disagreement (chi-square 2 dof 99.9 % = 13.816). After one nothing is sent
-until a check passes again. The fraction of states checked is in the metadata (``cross_check.*``). Each refusal is counted and recorded on ``/inject/dropped`` with the reason. Every GPS_INPUT built (sent in ``inject`` mode, or what
-would be sent in ``shadow`` mode) is recorded on ``/inject/gps_input``.
+until a check passes again. The fraction of states checked is in the metadata (``cross_check.*``). Each
+refusal is counted and recorded on ``/inject/dropped`` with the reason. Every GPS_INPUT built (sent in
+``inject`` mode, or what would be sent in ``shadow`` mode) is recorded on ``/inject/gps_input``.
 
 Activation: ``activate = "always"`` sends every valid solution (the set-up where the companion is the
 GPS instance the EKF follows); ``"gnss_loss"`` sends only while the real receiver (``receiver_instance``)
@@ -287,6 +288,9 @@ class Injector(Stage):
     def _on_gnss(self, fix: GnssFix) -> list[Event]:
         c = self.config
         if fix.instance != c.receiver_instance:
+            return []
+        if not _finite(fix.t_s):
+            self.dropped["receiver fix with a non-finite time (not used)"] += 1
             return []
         self._last_gnss_t = fix.t_s
         good = fix.fix_type >= FixType.FIX_3D and fix.has_position
