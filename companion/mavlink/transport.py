@@ -14,7 +14,7 @@ import termios
 import tty
 
 from companion.sources.base import SourceError
-from companion.mavlink.address import LinkSpec
+from companion.mavlink.address import SERIAL_BAUDS as _BAUDS, LinkSpec
 
 
 class LinkClosed(Exception):
@@ -127,9 +127,6 @@ class TcpTransport(Transport):
             if s is not None:
                 s.close()
         self.sock = self.listen_sock = None
-
-
-_BAUDS = {int(n[1:]): getattr(termios, n) for n in dir(termios) if n.startswith("B") and n[1:].isdigit()}
 
 
 class SerialTransport(Transport):
