@@ -65,10 +65,11 @@ def udp_port_bound(port: int) -> bool:
         return False
 
 
-def _reorder_window_s() -> float:
-    from companion.nav.config import NavigatorConfig
+def _autopilot_lag_s() -> float:
+    """Each GPS_INPUT describes the vehicle this long before the newest input the companion had when it built it."""
+    from companion.inject.gps_input import InjectConfig
 
-    return float(NavigatorConfig().reorder_window_s)
+    return float(InjectConfig().autopilot_lag_s)
 
 
 def sample_playback():
@@ -240,7 +241,7 @@ class Peer:
         self.items = [it for it in self.playback.items if it.msg.get_type() in STREAMS and it.play_s >= start_s]
         self.start_s = start_s
         self.rng = np.random.default_rng(seed)
-        self.window_s = _reorder_window_s()
+        self.epoch_lag_s = _autopilot_lag_s()
         self._listen = None
         self.sock: socket.socket | None = None
         if transport == "tcp":
@@ -363,7 +364,8 @@ class Peer:
             ned = LocalFrame(tr[0], tr[1], tr[2]).to_ned_m(d["lat_deg"], d["lon_deg"], d["alt_msl_m"])
             err = float(math.hypot(ned[0], ned[1]))
         lag = None
-        i = bisect.bisect_left(self._sent_boot, boot + self.window_s - 1e-6)
+        # the input it was built on: the first sent at or after the state's epoch + the autopilot's lag
+        i = bisect.bisect_left(self._sent_boot, boot + self.epoch_lag_s - 1e-6)
         if i < len(self._sent_boot):
             lag = now - self._sent_mono[i]
         self.gps_inputs.append(GpsInputSeen(now, boot, d["fix_type"], d["h_acc_m"], err, lag))
