@@ -3,15 +3,25 @@
 Each transport is blocking-with-timeout and used from one reader thread; ``write`` may be called from
 another thread (the reader never writes while holding the transport's state). A closed peer raises
 :class:`LinkClosed`; the link manager reconnects.
+
+How far behind the reader is, after each ``recv``: ``last_pending`` (bytes the kernel still holds) and
+``last_age_s``, how long ago the newest bytes just read reached the machine. UDP: the kernel's receive time
+stamp of the oldest datagram read (conservative). TCP and serial: the first time the reader saw the kernel's
+queue reach those bytes (:class:`ArrivalTracker`), exact to one read while the reader keeps reading. UDP reads
+take every datagram waiting (up to :data:`UDP_DRAIN_BYTES`) at once.
 """
 
 from __future__ import annotations
 
+import fcntl
 import os
 import select
 import socket
+import struct
 import termios
+import time
 import tty
+from collections import deque
 
 from companion.sources.base import SourceError
 from companion.mavlink.address import LinkSpec
@@ -21,7 +31,46 @@ class LinkClosed(Exception):
     """The peer closed the connection or the device went away."""
 
 
+#: one UDP read takes the datagrams waiting up to this many bytes
+UDP_DRAIN_BYTES = 1 << 18
+_SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)  # Linux: a struct timespec (CLOCK_REALTIME) per datagram
+_TIMESPEC = struct.Struct("@qq")
+
+
+def _queued_bytes(fd) -> int:
+    """Bytes waiting in the kernel's receive queue of a socket or tty (FIONREAD); 0 when it cannot tell."""
+    try:
+        return struct.unpack("@i", fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"))[0]
+    except (OSError, ValueError):
+        return 0
+
+
+class ArrivalTracker:
+    """When the bytes of a byte stream arrived, from what the kernel's queue held at each read.
+
+    After each read ``observe(n, queued)`` records (now, offset known to have arrived = bytes read + queued); the
+    bytes just read arrived by the first such record that covers their end offset."""
+
+    def __init__(self, clock=time.perf_counter) -> None:
+        self.clock = clock
+        self.read = 0
+        self._seen: deque[tuple[float, int]] = deque()
+
+    def observe(self, nbytes: int, queued: int) -> float:
+        """Age (s) of the last byte of a read of ``nbytes``, ``queued`` bytes still waiting after it."""
+        now = self.clock()
+        self.read += nbytes
+        self._seen.append((now, self.read + queued))
+        while self._seen[0][1] < self.read:
+            self._seen.popleft()
+        return now - self._seen[0][0]
+
+
 class Transport:
+    #: after a recv: how long ago its newest bytes arrived (0 when unknown), and how many are still queued
+    last_age_s: float = 0.0
+    last_pending: int = 0
+
     def recv(self, timeout_s: float) -> bytes:
         """Bytes that arrived within ``timeout_s`` (b"" when none)."""
         raise NotImplementedError
@@ -41,6 +90,11 @@ class UdpTransport(Transport):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+        try:
+            self.sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+            self._stamped = True
+        except OSError:
+            self._stamped = False
         if listen:
             self.sock.bind((host, port))
             self.peer = None
@@ -50,15 +104,31 @@ class UdpTransport(Transport):
 
     def recv(self, timeout_s: float) -> bytes:
         r, _, _ = select.select([self.sock], [], [], timeout_s)
+        self.last_age_s = 0.0
         if not r:
             return b""
-        try:
-            data, addr = self.sock.recvfrom(65536)
-        except ConnectionRefusedError:
-            return b""  # udpout with nobody listening yet (ICMP port unreachable)
-        if self.listen:
-            self.peer = addr
-        return data
+        chunks: list[bytes] = []
+        size = 0
+        oldest_s = None
+        while size < UDP_DRAIN_BYTES:
+            try:
+                data, anc, _flags, addr = self.sock.recvmsg(65536, 64, socket.MSG_DONTWAIT)
+            except (BlockingIOError, InterruptedError):
+                break
+            except ConnectionRefusedError:
+                break  # udpout with nobody listening yet (ICMP port unreachable)
+            for level, kind, raw in anc:
+                if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(raw) >= _TIMESPEC.size:
+                    sec, nsec = _TIMESPEC.unpack_from(raw)
+                    oldest_s = sec + nsec * 1e-9 if oldest_s is None else oldest_s
+            if self.listen:
+                self.peer = addr
+            chunks.append(data)
+            size += len(data)
+        if oldest_s is not None:  # the kernel stamps wall-clock time: clamped, a clock step cannot make it absurd
+            self.last_age_s = min(max(time.time() - oldest_s, 0.0), 60.0)
+        self.last_pending = _queued_bytes(self.sock)  # the next datagram's size: nonzero when some were left
+        return b"".join(chunks)
 
     def write(self, data: bytes) -> bool:
         if self.peer is None:
@@ -79,6 +149,7 @@ class TcpTransport(Transport):
     def __init__(self, host: str, port: int, listen: bool, connect_timeout_s: float = 2.0) -> None:
         self.listen_sock = None
         self.sock = None
+        self._arrivals = ArrivalTracker()
         if listen:
             self.listen_sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
             self.listen_sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -110,6 +181,8 @@ class TcpTransport(Transport):
             raise LinkClosed(f"connection error ({err.strerror or err})") from None
         if not data:
             raise LinkClosed("connection closed by the peer")
+        self.last_pending = _queued_bytes(self.sock)
+        self.last_age_s = self._arrivals.observe(len(data), self.last_pending)
         return data
 
     def write(self, data: bytes) -> bool:
@@ -139,6 +212,7 @@ class SerialTransport(Transport):
         if baud not in _BAUDS:
             raise SourceError(f"{device}: baud rate {baud} is not supported (use one of {sorted(_BAUDS)[-8:]})")
         self.fd = os.open(device, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        self._arrivals = ArrivalTracker()
         try:
             tty.setraw(self.fd)
             attr = termios.tcgetattr(self.fd)
@@ -161,6 +235,8 @@ class SerialTransport(Transport):
             raise LinkClosed(f"serial device error ({err.strerror})") from None
         if not data:
             raise LinkClosed("serial device closed")
+        self.last_pending = _queued_bytes(self.fd)
+        self.last_age_s = self._arrivals.observe(len(data), self.last_pending)
         return data
 
     def write(self, data: bytes) -> bool:
