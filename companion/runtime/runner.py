@@ -113,9 +113,10 @@ class Runtime:
         if self._log is not None:
             self._log(f"link {st.state}: {st.detail}")
         else:
-            level = logging.WARNING if st.state in ("lost", "open_failed", "rate_low") else logging.INFO
+            level = (logging.ERROR if st.state == "failed" else
+                     logging.WARNING if st.state in ("lost", "open_failed", "rate_low", "shedding") else logging.INFO)
             _logger.log(level, "link %s: %s", st.state, st.detail)
-        if st.state in ("autopilot", "lost", "reboot", "opened"):
+        if st.state in ("autopilot", "lost", "reboot", "opened", "failed"):
             self.notifier.status(f"link {st.state}: {st.detail}")
 
     # -- loop ---------------------------------------------------------------------------------
@@ -148,18 +149,21 @@ class Runtime:
                     break
                 if isinstance(item, Batch):
                     if time.perf_counter() - item.recv_perf_s > SHED_AFTER_S:
-                        item, later = self._catch_up(item, queue)
+                        work, later = self._catch_up(item, queue)
                         for st in later:
                             if st is _STOP:
                                 self._stop_requested = True
                             else:
                                 self._on_status(st)
-                    elif self._behind:
-                        self._behind = False
-                        self._say(logging.INFO, f"caught up with the link; shed so far: {self._shed_text()}")
-                    self._rx = (item.recv_perf_s, item.trigger)
-                    self.injector.arrival_s = item.recv_perf_s
-                    for ev in item.events:
+                    else:
+                        work = [(ev, item.recv_perf_s, item.trigger) for ev in item.events]
+                        if self._behind:
+                            self._behind = False
+                            self._say(logging.INFO, f"caught up with the link; shed so far: {self._shed_text()}")
+                    for ev, arrival_s, trigger in work:
+                        # each event is judged by when its own bytes arrived, merged or not
+                        self._rx = (arrival_s, trigger)
+                        self.injector.arrival_s = arrival_s
                         self.pipeline.process(ev)
                         if time.perf_counter() - last_yield > YIELD_S:
                             await asyncio.sleep(0)  # let a signal handler run
@@ -191,17 +195,16 @@ class Runtime:
         self.stopped_by = reasons[0] if reasons else None
         return self.stopped_by
 
-    def _catch_up(self, first: Batch, queue: asyncio.Queue) -> tuple[Batch, list]:
-        """Behind the link: every queued batch at once, IMU samples coalesced; returns the merged batch (its
-        arrival time: the newest input's) and the link statuses (and a stop) that were queued between them."""
+    def _catch_up(self, first: Batch, queue: asyncio.Queue) -> tuple[list[tuple[Event, float, str]], list]:
+        """Behind the link: every queued batch at once, IMU samples coalesced; returns the events with their
+        arrival times and triggers, and the link statuses (and a stop) that were queued between them."""
         batches, other = [first], []
         while not queue.empty() and len(batches) < MAX_DRAIN:
             nxt = queue.get_nowait()
             (batches if isinstance(nxt, Batch) else other).append(nxt)
-        events = [ev for b in batches for ev in b.events]
-        merged = coalesce_imu(events)
-        n_imu_in = sum(isinstance(e, ImuSample) for e in events)
-        n_imu_out = sum(isinstance(e, ImuSample) for e in merged)
+        work = coalesce_imu_timed([(ev, b.recv_perf_s, b.trigger) for b in batches for ev in b.events])
+        n_imu_in = sum(isinstance(e, ImuSample) for b in batches for e in b.events)
+        n_imu_out = sum(isinstance(w[0], ImuSample) for w in work)
         self.shed["batches_merged"] += len(batches) - 1
         self.shed["imu_samples_in"] += n_imu_in
         self.shed["imu_samples_coalesced"] += n_imu_in - n_imu_out
@@ -210,8 +213,7 @@ class Runtime:
             self.shed["episodes"] += 1
             lag = time.perf_counter() - first.recv_perf_s
             self._say(logging.WARNING, f"{lag:.2f} s behind the link: coalescing IMU samples to catch up")
-        last = batches[-1]
-        return Batch(last.recv_perf_s, merged, last.trigger), other
+        return work, other
 
     def _shed_text(self) -> str:
         s = self.shed
@@ -278,8 +280,13 @@ def coalesce_imu(events: list[Event]) -> list[Event]:
 
     The navigator holds a sample over the interval since the previous one, so the mean held over the whole run
     integrates the same velocity and angle change to first order; other events keep their order and place."""
-    out: list[Event] = []
-    runs: dict[int, list[ImuSample]] = {}
+    return [w[0] for w in coalesce_imu_timed([(ev, 0.0, "") for ev in events])]
+
+
+def coalesce_imu_timed(work: list[tuple[Event, float, str]]) -> list[tuple[Event, float, str]]:
+    """:func:`coalesce_imu` on (event, arrival, trigger): a coalesced sample keeps its last member's arrival."""
+    out: list[tuple[Event, float, str]] = []
+    runs: dict[int, list[tuple[ImuSample, float, str]]] = {}
 
     def flush() -> None:
         for run in runs.values():
@@ -287,16 +294,18 @@ def coalesce_imu(events: list[Event]) -> list[Event]:
                 out.append(run[0])
                 continue
             n = float(len(run))
-            acc = tuple(sum(s.accel_frd_mps2[i] for s in run) / n for i in range(3))
-            gyr = tuple(sum(s.gyro_frd_radps[i] for s in run) / n for i in range(3))
-            out.append(replace(run[-1], accel_frd_mps2=acc, gyro_frd_radps=gyr))
+            acc = tuple(sum(s.accel_frd_mps2[i] for s, _, _ in run) / n for i in range(3))
+            gyr = tuple(sum(s.gyro_frd_radps[i] for s, _, _ in run) / n for i in range(3))
+            last, arrival_s, trigger = run[-1]
+            out.append((replace(last, accel_frd_mps2=acc, gyro_frd_radps=gyr), arrival_s, trigger))
         runs.clear()
 
-    for ev in events:
+    for w in work:
+        ev = w[0]
         if isinstance(ev, ImuSample):
-            runs.setdefault(ev.imu_index, []).append(ev)
+            runs.setdefault(ev.imu_index, []).append(w)
         else:
             flush()
-            out.append(ev)
+            out.append(w)
     flush()
     return out
