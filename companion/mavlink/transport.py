@@ -5,10 +5,11 @@ another thread (the reader never writes while holding the transport's state). A 
 :class:`LinkClosed`; the link manager reconnects.
 
 How far behind the reader is, after each ``recv``: ``last_pending`` (bytes the kernel still holds) and
-``last_age_s``, how long ago the newest bytes just read reached the machine. UDP: the kernel's receive time
-stamp of the oldest datagram read (conservative). TCP and serial: the first time the reader saw the kernel's
-queue reach those bytes (:class:`ArrivalTracker`), exact to one read while the reader keeps reading. UDP reads
-take every datagram waiting (up to :data:`UDP_DRAIN_BYTES`) at once.
+``last_age_s``, how long ago the bytes just read reached the machine, from the kernel's receive time stamps
+(``SO_TIMESTAMPNS``): UDP, the oldest datagram read (conservative); TCP, the newest bytes read (what the kernel
+gives). Serial (no time stamps): the first time the reader saw the kernel's queue reach those bytes
+(:class:`ArrivalTracker`), exact to one read while the reader keeps reading. UDP reads take every datagram
+waiting (up to :data:`UDP_DRAIN_BYTES`) at once.
 """
 
 from __future__ import annotations
@@ -35,6 +36,23 @@ class LinkClosed(Exception):
 UDP_DRAIN_BYTES = 1 << 18
 _SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)  # Linux: a struct timespec (CLOCK_REALTIME) per datagram
 _TIMESPEC = struct.Struct("@qq")
+
+
+def _enable_stamps(sock: socket.socket) -> None:
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+    except OSError:
+        pass  # no kernel time stamps: ages read as 0 (unknown)
+
+
+def _stamp_age_s(anc) -> float | None:
+    """Age of the kernel's receive time stamp in recvmsg's ancillary data (None when there is none). The kernel
+    stamps wall-clock time: clamped, so a clock step cannot make it negative or absurd."""
+    for level, kind, raw in anc:
+        if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(raw) >= _TIMESPEC.size:
+            sec, nsec = _TIMESPEC.unpack_from(raw)
+            return min(max(time.time() - (sec + nsec * 1e-9), 0.0), 60.0)
+    return None
 
 
 def _queued_bytes(fd) -> int:
@@ -90,11 +108,7 @@ class UdpTransport(Transport):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
-        try:
-            self.sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
-            self._stamped = True
-        except OSError:
-            self._stamped = False
+        _enable_stamps(self.sock)
         if listen:
             self.sock.bind((host, port))
             self.peer = None
@@ -109,7 +123,7 @@ class UdpTransport(Transport):
             return b""
         chunks: list[bytes] = []
         size = 0
-        oldest_s = None
+        age_s = None
         while size < UDP_DRAIN_BYTES:
             try:
                 data, anc, _flags, addr = self.sock.recvmsg(65536, 64, socket.MSG_DONTWAIT)
@@ -117,16 +131,13 @@ class UdpTransport(Transport):
                 break
             except ConnectionRefusedError:
                 break  # udpout with nobody listening yet (ICMP port unreachable)
-            for level, kind, raw in anc:
-                if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(raw) >= _TIMESPEC.size:
-                    sec, nsec = _TIMESPEC.unpack_from(raw)
-                    oldest_s = sec + nsec * 1e-9 if oldest_s is None else oldest_s
+            if age_s is None:
+                age_s = _stamp_age_s(anc)  # the oldest datagram of the read
             if self.listen:
                 self.peer = addr
             chunks.append(data)
             size += len(data)
-        if oldest_s is not None:  # the kernel stamps wall-clock time: clamped, a clock step cannot make it absurd
-            self.last_age_s = min(max(time.time() - oldest_s, 0.0), 60.0)
+        self.last_age_s = age_s or 0.0
         self.last_pending = _queued_bytes(self.sock)  # the next datagram's size: nonzero when some were left
         return b"".join(chunks)
 
@@ -161,6 +172,7 @@ class TcpTransport(Transport):
 
     def _setup(self, s: socket.socket) -> None:
         s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        _enable_stamps(s)
         s.settimeout(None)
         s.setblocking(True)
         self.sock = s
@@ -176,13 +188,15 @@ class TcpTransport(Transport):
         if not r:
             return b""
         try:
-            data = self.sock.recv(65536)
+            data, anc, _flags, _addr = self.sock.recvmsg(65536, 64)
         except OSError as err:
             raise LinkClosed(f"connection error ({err.strerror or err})") from None
         if not data:
             raise LinkClosed("connection closed by the peer")
         self.last_pending = _queued_bytes(self.sock)
-        self.last_age_s = self._arrivals.observe(len(data), self.last_pending)
+        tracked = self._arrivals.observe(len(data), self.last_pending)
+        stamped = _stamp_age_s(anc)
+        self.last_age_s = tracked if stamped is None else stamped
         return data
 
     def write(self, data: bytes) -> bool:
