@@ -10,12 +10,14 @@ the pings and systemd restarts the service).
 Latency: for every GPS_INPUT that leaves, the time from the arrival of the bytes whose decoding caused
 it (``Batch.recv_perf_s``) to the return of the socket write is kept per triggering message type.
 
-Freshness under load: the injector is told when the input it is working on arrived and never sends a state
-whose input arrived more than ``inject.max_lag_s`` ago. When the loop is behind the link (a batch waited
+Freshness under load: the injector is told when the input it is working on arrived (the kernel's receive time,
+see :mod:`companion.mavlink.transport`) and never sends a state whose input arrived more than ``inject.max_lag_s``
+(less :data:`DELIVERY_MARGIN_S`) ago. When the loop is behind the link (a batch waited
 more than :data:`SHED_AFTER_S`), everything queued is taken at once and its IMU samples are coalesced (the
 mean of each run between other events, held over the run's interval like one sample) so the loop catches
 up instead of falling further behind; it says so once per episode and counts what it shed (metadata
-``shed.*``, the summary). SIGTERM/SIGINT end the loop within a batch, whatever is still queued: the loop
+``shed.*``, the summary). The link's reader thins IMU frames itself when it is behind the kernel's queue
+(:mod:`companion.mavlink.shed`; ``link.imu_frames_shed``). SIGTERM/SIGINT end the loop within a batch, whatever is still queued: the loop
 yields to the event loop every :data:`YIELD_S` so the signal handler runs.
 """
 
@@ -44,6 +46,11 @@ _logger = logging.getLogger(__name__)
 _STOP = object()
 #: a batch that waited this long (perf_counter, since its bytes arrived) means the loop is behind: shed load
 SHED_AFTER_S = 0.1
+#: the injector's freshness check comes before the write, the autopilot's read after it: a state is held to
+#: ``inject.max_lag_s`` minus this since its input arrived (what a loaded machine adds on the way out)
+DELIVERY_MARGIN_S = 0.05
+#: back on time this long: the episode is over (one pair of log lines per episode, not per late batch)
+CAUGHT_UP_AFTER_S = 1.0
 #: the loop hands control back to the event loop (signals, housekeeping) at least this often while busy
 YIELD_S = 0.02
 #: batches taken from the queue at once when behind
@@ -75,7 +82,8 @@ class Runtime:
         sender = self.link.send if config.inject.mode == "inject" else None
         self.injector = Injector(config.inject, sender=sender)
         self.injector.on_sent = self._on_sent
-        self.injector.arrival_clock = time.perf_counter  # freshness judged by when the input's bytes arrived
+        # freshness judged by when the input's bytes arrived, with a margin for the way out after the check
+        self.injector.arrival_clock = lambda: time.perf_counter() + DELIVERY_MARGIN_S
         self.pipeline: Pipeline = build_pipeline(sink, nav_config=nav_config, extra_stages=[*stages, self.injector])
         self.notifier = notifier if notifier is not None else Notifier()
         self.info = SourceInfo(kind="live", location=self.link.spec.url)
@@ -85,6 +93,7 @@ class Runtime:
         self.stopped_by: str | None = None
         self.shed: dict[str, int] = defaultdict(int)  # load shed when behind: imu_in, imu_out, batches, episodes
         self._behind = False
+        self._behind_at = 0.0  # perf_counter time the loop was last found behind
         self._stop_requested = False
         self._rx: tuple[float, str] | None = None
         self._last_batch_wall = time.monotonic()
@@ -157,7 +166,7 @@ class Runtime:
                                 self._on_status(st)
                     else:
                         work = [(ev, item.recv_perf_s, item.trigger) for ev in item.events]
-                        if self._behind:
+                        if self._behind and time.perf_counter() - self._behind_at > CAUGHT_UP_AFTER_S:
                             self._behind = False
                             self._say(logging.INFO, f"caught up with the link; shed so far: {self._shed_text()}")
                     for ev, arrival_s, trigger in work:
@@ -198,6 +207,7 @@ class Runtime:
     def _catch_up(self, first: Batch, queue: asyncio.Queue) -> tuple[list[tuple[Event, float, str]], list]:
         """Behind the link: every queued batch at once, IMU samples coalesced; returns the events with their
         arrival times and triggers, and the link statuses (and a stop) that were queued between them."""
+        self._behind_at = time.perf_counter()
         batches, other = [first], []
         while not queue.empty() and len(batches) < MAX_DRAIN:
             nxt = queue.get_nowait()

@@ -250,26 +250,24 @@ class FastFrames:
             return x25crc(bytes(b)).crc
 
         zero = crc(-1, 0)
-        self._seq_tab = [crc(3, v) ^ zero for v in range(256)]  # frame[4]
-        self._time_tabs = [[crc(9 + i, v) ^ zero for v in range(256)] for i in range(8)]  # frame[10:18]
+        self._seq_tab = np.array([crc(3, v) ^ zero for v in range(256)], dtype=np.uint16)  # frame[4]
+        self._time_tabs = np.array([[crc(9 + i, v) ^ zero for v in range(256)] for i in range(8)],
+                                   dtype=np.uint16)  # frame[10:18]
 
     def frames(self, times_us: list[int]) -> bytes:
-        out = []
-        f = bytearray(self.frame0)
-        tabs, seq_tab = self._time_tabs, self._seq_tab
-        for t in times_us:
-            seq = self.mav.seq
-            self.mav.seq = (seq + 1) % 256
-            tb = (t & 0xFFFFFFFFFFFFFFFF).to_bytes(8, "little")
-            crc = self.crc0 ^ seq_tab[seq]
-            for i in range(8):
-                crc ^= tabs[i][tb[i]]
-            f[4] = seq
-            f[10:18] = tb
-            f[-2] = crc & 0xFF
-            f[-1] = crc >> 8
-            out.append(bytes(f))
-        return b"".join(out)
+        n = len(times_us)
+        seq = (self.mav.seq + np.arange(n)) % 256
+        self.mav.seq = int((self.mav.seq + n) % 256)
+        tb = np.asarray(times_us, dtype=np.uint64).astype("<u8").view(np.uint8).reshape(n, 8)
+        crc = np.full(n, self.crc0, dtype=np.uint16) ^ self._seq_tab[seq]
+        for i in range(8):
+            crc ^= self._time_tabs[i][tb[:, i]]
+        f = np.tile(np.frombuffer(bytes(self.frame0), dtype=np.uint8), (n, 1))
+        f[:, 4] = seq
+        f[:, 10:18] = tb
+        f[:, -2] = crc & 0xFF
+        f[:, -1] = crc >> 8
+        return f.tobytes()
 
 
 class Sigterm(Fault):
