@@ -84,7 +84,10 @@ class Runtime:
         self.injector.on_sent = self._on_sent
         # freshness judged by when the input's bytes arrived, with a margin for the way out after the check
         self.injector.arrival_clock = lambda: time.perf_counter() + DELIVERY_MARGIN_S
-        self.pipeline: Pipeline = build_pipeline(sink, nav_config=nav_config, extra_stages=[*stages, self.injector])
+        # what the pipeline records waits until the batch is done: the GPS_INPUT goes out before the disk work
+        self.deferred = DeferredSink(sink) if sink is not None else None
+        self.pipeline: Pipeline = build_pipeline(self.deferred, nav_config=nav_config,
+                                                 extra_stages=[*stages, self.injector])
         self.notifier = notifier if notifier is not None else Notifier()
         self.info = SourceInfo(kind="live", location=self.link.spec.url)
         self.latency_s: dict[str, array] = defaultdict(lambda: array("d"))
@@ -117,8 +120,9 @@ class Runtime:
 
     def _on_status(self, st: LinkStatus) -> None:
         self.link_log.append(st)
-        if self.sink is not None:
-            self.sink.write(st)
+        if self.deferred is not None:
+            self.deferred.write(st)
+            self.deferred.drain()
         if self._log is not None:
             self._log(f"link {st.state}: {st.detail}")
         else:
@@ -175,11 +179,13 @@ class Runtime:
                         self.injector.arrival_s = arrival_s
                         self.pipeline.process(ev)
                         if time.perf_counter() - last_yield > YIELD_S:
+                            self._drain()
                             await asyncio.sleep(0)  # let a signal handler run
                             last_yield = time.perf_counter()
                             if self._stop_requested:
                                 break
                     self._rx = None  # (the injector keeps the arrival: what finish() flushes was built from it)
+                    self._drain()
                     self.batches += 1
                     self._last_batch_wall = time.monotonic()
                 elif isinstance(item, LinkStatus):
@@ -199,7 +205,9 @@ class Runtime:
                     self._on_status(item)
                 elif isinstance(item, Batch):
                     self.shed["batches_left_at_stop"] += 1
+            self._drain()
             self.pipeline.finish()
+            self._drain()
             self.notifier.close()
         self.stopped_by = reasons[0] if reasons else None
         return self.stopped_by
@@ -224,6 +232,10 @@ class Runtime:
             lag = time.perf_counter() - first.recv_perf_s
             self._say(logging.WARNING, f"{lag:.2f} s behind the link: coalescing IMU samples to catch up")
         return work, other
+
+    def _drain(self) -> None:
+        if self.deferred is not None:
+            self.deferred.drain()
 
     def _shed_text(self) -> str:
         s = self.shed
@@ -283,6 +295,29 @@ class Runtime:
                 f"p99 {percentile_ms(vals, 99):.2f} ms over {len(vals)}"
             )
         return lines
+
+
+class DeferredSink:
+    """The pipeline's sink, written once the batch is processed (:meth:`drain`), in the order it was given."""
+
+    def __init__(self, sink: Any) -> None:
+        self.sink = sink
+        self._pending: list[tuple[Any, tuple, dict]] = []
+
+    def write(self, *args, **kw) -> None:
+        self._pending.append((self.sink.write, args, kw))
+
+    def write_location(self, *args, **kw) -> None:
+        self._pending.append((self.sink.write_location, args, kw))
+
+    def drain(self) -> None:
+        pending, self._pending = self._pending, []
+        for fn, args, kw in pending:
+            fn(*args, **kw)
+
+    def __getattr__(self, name: str) -> Any:  # anything else (flush, paths, ...) is the sink's own, after a drain
+        self.drain()
+        return getattr(self.sink, name)
 
 
 def coalesce_imu(events: list[Event]) -> list[Event]:
