@@ -165,3 +165,20 @@ def test_reader_posts_wake_the_loop_once_however_many_items():
     asyncio.run(main())
     assert got == list(range(n))
     assert pending[1] == 1
+
+
+def test_fuzz_peer_burst_frames_are_what_pymavlink_packs():
+    """The peer's fast burst frames (tabled CRC) are byte for byte pymavlink's, sequence numbers wrapping."""
+    from replay.fuzz.frames import FastFrames
+
+    tmpl = mavlink2.MAVLink_raw_imu_message(5, 1, 2, 3, 4, 5, 6, 7, 8, 9, 0, 20)
+    fast_tx, ref_tx = mavlink2.MAVLink(None, 1, 1), mavlink2.MAVLink(None, 1, 1)
+    fast_tx.seq = ref_tx.seq = 250
+    times = [1_000_000 + 25 * k for k in range(20)] + [2**40 + 7]
+    ref = []
+    for t in times:
+        tmpl.time_usec = t
+        ref.append(bytes(tmpl.pack(ref_tx)))
+        ref_tx.seq = (ref_tx.seq + 1) % 256
+    assert FastFrames(tmpl, fast_tx).frames(times) == b"".join(ref)
+    assert fast_tx.seq == ref_tx.seq
