@@ -81,8 +81,6 @@ def test_no_stale_gps_input_under_burst(tmp_path):
     assert res.fresh_after_faults > 0, _summary(res)
 
 
-@pytest.mark.xfail(**XFAIL, reason="SYSTEM_TIME with time_unix_usec 4e16 in inject mode: GPS week 66,000 does not "
-                   "fit GPS_INPUT.time_week (uint16): struct.error from pack() in the loop, the process dies")
 def test_system_time_4e16_in_inject_mode(tmp_path):
     res, _, _ = _run("system_time_4e16", [Inject(1.0, {"SYSTEM_TIME": [("time_unix_usec", 40_000_000_000_000_000)]})],
                      tmp_path)
