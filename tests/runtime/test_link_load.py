@@ -95,14 +95,14 @@ def test_udp_read_takes_every_datagram_waiting_with_its_kernel_age():
     rx = UdpTransport("127.0.0.1", port, listen=True)
     tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
+        t_first = time.monotonic()  # before the first datagram: an upper bound of their age whatever the load
         for k in range(5):
             tx.sendto(bytes([k]) * 100, ("127.0.0.1", port))
-        t_sent = time.monotonic()
         time.sleep(0.3)  # the datagrams wait in the kernel this long (at least)
         data = rx.recv(5.0)
-        waited = time.monotonic() - t_sent
+        waited = time.monotonic() - t_first
         assert data == b"".join(bytes([k]) * 100 for k in range(5))
-        assert 0.3 <= rx.last_age_s <= waited + 0.05
+        assert 0.3 <= rx.last_age_s <= waited + 0.01  # (+ the wall and monotonic clocks' read-out skew)
         assert rx.recv(0.0) == b"" and rx.last_age_s == 0.0
     finally:
         tx.close()
@@ -117,13 +117,13 @@ def test_tcp_read_reports_the_kernel_age_of_its_bytes():
         end = time.monotonic() + 60
         while srv.sock is None and time.monotonic() < end:
             srv.recv(0.1)
+        t_first = time.monotonic()
         cli.sendall(b"x" * 1000)
-        t_sent = time.monotonic()
         time.sleep(0.3)
         data = srv.recv(5.0)
-        waited = time.monotonic() - t_sent
+        waited = time.monotonic() - t_first
         assert data == b"x" * 1000 and srv.last_pending == 0
-        assert 0.3 <= srv.last_age_s <= waited + 0.05
+        assert 0.3 <= srv.last_age_s <= waited + 0.01
     finally:
         cli.close()
         srv.close()
