@@ -30,6 +30,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -38,6 +39,7 @@ from pathlib import Path
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from replay.fuzz.frames import FastFrames
 from replay.fuzz.properties import TRACEBACK_MARKS, check_mcap
 
 CLI = [sys.executable, "-m", "companion.cli"]
@@ -190,26 +192,35 @@ class Inject(Fault):
 
 
 class Burst(Fault):
-    """RAW_IMU at ``rate`` messages a second on top of the stream, boot time advancing with the play clock."""
+    """RAW_IMU at ``rate`` messages a second on top of the stream, boot time advancing with the play clock.
+
+    At most :data:`BURST_STEP_S` of the schedule is packed per play-loop step, so the stream goes on between chunks
+    however slow the peer is (a peer busy packing seconds of burst at once would starve its own stream and the test
+    would judge the peer); what the peer could not send is not made up later (``sent`` counts what went)."""
 
     def __init__(self, at_s, duration_s=3.0, rate=14_000, chunk=40):
         super().__init__(at_s, duration_s)
         self.rate, self.chunk, self.sent = rate, chunk, 0
+        self._scheduled = 0  # frames the schedule has reached (sent or given up)
+        self._frames: FastFrames | None = None
 
     def step(self, peer, now):
-        due = int(self.rate * (now - self.t0)) - self.sent
+        due = int(self.rate * (now - self.t0)) - self._scheduled
         if due < self.chunk:
             return
         tmpl = peer.newest("RAW_IMU")
         if tmpl is None:
             return
-        msg = copy.copy(tmpl)
-        frames = []
-        for k in range(due):
-            msg.time_usec = int((now - (due - k) / self.rate) * 1e6)
-            frames.append(peer.pack(msg))
-        peer.write(b"".join(frames))
-        self.sent += due
+        if self._frames is None:
+            self._frames = FastFrames(tmpl, peer.packer((1, 1)))
+        n = min(due, max(self.chunk, int(self.rate * BURST_STEP_S)))
+        peer.write(self._frames.frames([int((now - (n - k) / self.rate) * 1e6) for k in range(n)]))
+        self._scheduled += due  # the schedule moves on: a peer that fell behind does not pile up a backlog of its own
+        self.sent += n
+
+
+#: the longest stretch of a burst's schedule packed in one play-loop step
+BURST_STEP_S = 0.01
 
 
 class Sigterm(Fault):
@@ -268,12 +279,21 @@ class Peer:
         self.wall0: float | None = None
         self.sigterm_mono: float | None = None
         self._k = 0
+        # what the companion sends is read (and timed) by a thread of its own: the play loop can be busy packing
+        # a burst for a long time on a loaded machine, and a GPS_INPUT must not look late for the peer's delay
+        self._lock = threading.Lock()
+        self._reader: threading.Thread | None = None
+        self._closing = threading.Event()
 
     # -- I/O ----------------------------------------------------------------------------------
-    def pack(self, msg, src=(1, 1), force_mavlink1=False) -> bytes:
+    def packer(self, src=(1, 1)):
         mav = self._packers.get(src)
         if mav is None:
             mav = self._packers[src] = mavlink2.MAVLink(None, srcSystem=src[0], srcComponent=src[1])
+        return mav
+
+    def pack(self, msg, src=(1, 1), force_mavlink1=False) -> bytes:
+        mav = self.packer(src)
         frame = bytes(msg.pack(mav, force_mavlink1=force_mavlink1))
         mav.seq = (mav.seq + 1) % 256
         return frame
@@ -313,6 +333,7 @@ class Peer:
                 if r:
                     self.sock, _ = self._listen.accept()
                     self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                    self._start_reader()
         else:
             while not udp_port_bound(self.port):
                 if time.monotonic() > end or (self.companion and self.companion.proc.poll() is not None):
@@ -320,9 +341,22 @@ class Peer:
                 time.sleep(0.05)
             self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             self.sock.bind(("127.0.0.1", 0))
+            self._start_reader()
         self.wall0 = time.monotonic()
 
+    def _start_reader(self) -> None:
+        def run():
+            while not self._closing.is_set() and self.sock is not None:
+                self._read(0.05)
+
+        self._reader = threading.Thread(target=run, name="peer-reader", daemon=True)
+        self._reader.start()
+
     def close(self) -> None:
+        self._closing.set()
+        if self._reader is not None:
+            self._reader.join(5)
+            self._reader = None
         for s in (self.sock, self._listen):
             if s is not None:
                 s.close()
@@ -330,20 +364,21 @@ class Peer:
 
     # -- receiving ----------------------------------------------------------------------------
     def _read(self, timeout_s: float) -> None:
-        if self.sock is None:
-            return
-        r, _, _ = select.select([self.sock], [], [], max(0.0, timeout_s))
-        if not r:
+        sock = self.sock
+        if sock is None:
             return
         try:
-            data = self.sock.recv(65536) if self.transport == "tcp" else self.sock.recvfrom(65536)[0]
-        except OSError:
-            return
-        if not data:
-            self.sock.close()
-            self.sock = None
+            r, _, _ = select.select([sock], [], [], max(0.0, timeout_s))
+            if not r:
+                return
+            data = sock.recv(65536) if self.transport == "tcp" else sock.recvfrom(65536)[0]
+        except (OSError, ValueError):  # closed under us
             return
         now = time.monotonic()
+        if not data:
+            sock.close()
+            self.sock = None
+            return
         for m in self._rx.parse_buffer(data) or []:
             t = m.get_type()
             self.received[t] = self.received.get(t, 0) + 1
@@ -365,9 +400,10 @@ class Peer:
             err = float(math.hypot(ned[0], ned[1]))
         lag = None
         # the input it was built on: the first sent at or after the state's epoch + the autopilot's lag
-        i = bisect.bisect_left(self._sent_boot, boot + self.epoch_lag_s - 1e-6)
-        if i < len(self._sent_boot):
-            lag = now - self._sent_mono[i]
+        with self._lock:
+            i = bisect.bisect_left(self._sent_boot, boot + self.epoch_lag_s - 1e-6)
+            if i < len(self._sent_boot):
+                lag = now - self._sent_mono[i]
         self.gps_inputs.append(GpsInputSeen(now, boot, d["fix_type"], d["h_acc_m"], err, lag))
 
     # -- playing ------------------------------------------------------------------------------
@@ -403,13 +439,14 @@ class Peer:
                 out.append(frame)
                 self._newest[it.msg.get_type()] = it.msg
                 if it.boot_s is not None:
-                    self._sent_boot.append(it.boot_s)
-                    self._sent_mono.append(time.monotonic())
+                    with self._lock:
+                        self._sent_boot.append(it.boot_s)
+                        self._sent_mono.append(time.monotonic())
             if out:
                 self.write(b"".join(out))
             nxt = self.items[self._k].play_s if self._k < len(self.items) else now + 0.01
             busy = any(isinstance(f, (Burst, Garbage)) for f in active)
-            self._read(0.0005 if busy else min(0.005, max(0.0, nxt - self.play_now())))
+            time.sleep(0.0005 if busy else min(0.005, max(0.0, nxt - self.play_now())))
 
     def fresh_since(self, t_mono: float) -> list[GpsInputSeen]:
         return [g for g in self.gps_inputs if g.recv_mono >= t_mono and g.lag_s is not None and g.lag_s <= MAX_LAG_S]

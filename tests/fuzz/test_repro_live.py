@@ -39,17 +39,12 @@ def _summary(res) -> str:
             f"max lag {res.max_lag_s:.2f} s, traceback {res.traceback!r}, MCAP {res.mcap or 'ok'}; {res.notes}")
 
 
-@pytest.mark.xfail(**XFAIL, reason="one RAW_IMU 1e5 s ahead: a false reboot moves the vehicle clock 1e5 s ahead, "
-                   "the navigator ticks through it in the loop (Navigator._run_ticks): GPS_INPUT stops, SIGTERM is "
-                   "never handled, the record is not finalised")
 def test_live_forward_time_jump_keeps_consuming(tmp_path):
     res, _, _ = _run("imu_forward_1e5s", [Inject(1.0, {"RAW_IMU": [("time_usec", "+100000s")]})], tmp_path)
     assert res.died_s is None and res.fresh_after_faults > 0, _summary(res)
     assert res.exit_code == 0 and res.sigterm_to_exit_s <= 2.0 and not res.mcap, _summary(res)
 
 
-@pytest.mark.xfail(**XFAIL, reason="one ATTITUDE 30 s ahead: VehicleClock takes it as the new time, the stream "
-                   "then looks 30 s behind and is confirmed as an autopilot reboot; GPS_INPUT goes out seconds late")
 def test_live_future_stamped_attitude_is_not_a_reboot(tmp_path):
     res, _, comp = _run("future_attitude_30s", [Inject(1.0, {"ATTITUDE": [("time_boot_ms", "+30s")]})], tmp_path)
     from companion.record import summarize
@@ -60,8 +55,6 @@ def test_live_future_stamped_attitude_is_not_a_reboot(tmp_path):
     assert res.stale == 0, _summary(res)
 
 
-@pytest.mark.xfail(**XFAIL, reason="SIGTERM during a burst backlog over TCP: the stop marker is queued behind "
-                   "every batch already waiting (Runtime.run: stop() -> queue.put_nowait(_STOP)), exit takes ~10 s")
 def test_sigterm_honoured_within_2s_under_backlog_tcp(tmp_path):
     burst = Burst(1.0, 6.0, rate=BURST_HZ)
     res, _, _ = _run("sigterm_in_burst", [burst, Sigterm(3.5)], tmp_path, "tcp")
@@ -70,10 +63,6 @@ def test_sigterm_honoured_within_2s_under_backlog_tcp(tmp_path):
     assert not res.mcap, _summary(res)
 
 
-@pytest.mark.xfail(**XFAIL, reason="SIGTERM during a burst backlog over UDP: queued behind the backlog (~10 s), or lost "
-                   "outright when one call_soon_threadsafe per datagram has filled asyncio's self-pipe and the "
-                   "signal's wake-up byte cannot be written ('Exception ignored when trying to write to the signal "
-                   "wakeup fd'): then the process never exits")
 def test_sigterm_honoured_within_2s_under_backlog_udp(tmp_path):
     burst = Burst(1.0, 6.0, rate=BURST_HZ)
     res, _, _ = _run("sigterm_in_burst", [burst, Sigterm(3.5)], tmp_path, "udp")
@@ -82,9 +71,6 @@ def test_sigterm_honoured_within_2s_under_backlog_udp(tmp_path):
     assert not res.traceback and not res.mcap, _summary(res)
 
 
-@pytest.mark.xfail(**XFAIL, reason="after a 3 s burst the loop is seconds behind the link and still sends 3D fixes: "
-                   "the staleness check compares sensor time with sensor time (Injector._on_state), never with "
-                   "when the input's bytes arrived")
 def test_no_stale_gps_input_under_burst(tmp_path):
     burst = Burst(1.0, 3.0, rate=BURST_HZ)
     res, peer, _ = _run("burst", [burst], tmp_path)
