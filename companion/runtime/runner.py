@@ -98,6 +98,7 @@ class Runtime:
         self.shed: dict[str, int] = defaultdict(int)  # load shed when behind: imu_in, imu_out, batches, episodes
         self._behind = False
         self._behind_at = 0.0  # perf_counter time the loop was last found behind
+        self._queue: asyncio.Queue | None = None
         self._stop_requested = False
         self._rx: tuple[float, str] | None = None
         self._last_batch_wall = time.monotonic()
@@ -138,6 +139,7 @@ class Runtime:
         """Run until SIGTERM/SIGINT or ``duration_s``; returns what stopped it."""
         loop = asyncio.get_running_loop()
         queue: asyncio.Queue = asyncio.Queue()
+        self._queue = queue
         reasons: list[str] = []
         # the link thread and the loop share the GIL: hand it over within 1 ms, not CPython's default 5 ms
         sys.setswitchinterval(0.001)
@@ -256,6 +258,10 @@ class Runtime:
                 next_ping = now + period
             if now - self._last_batch_wall > 1.0 and hasattr(self.sink, "flush"):
                 self.sink.flush()  # nothing arriving: put what we have on disk
+            if (self._behind and self._queue is not None and self._queue.empty()
+                    and time.perf_counter() - self._behind_at > CAUGHT_UP_AFTER_S):
+                self._behind = False  # the backlog is worked off and nothing new came (a quiet or lost link)
+                self._say(logging.INFO, f"caught up with the link (nothing queued); shed so far: {self._shed_text()}")
 
     # -- reporting ----------------------------------------------------------------------------
     def finalize_info(self) -> None:
