@@ -76,6 +76,10 @@ MODES = ("off", "shadow", "inject")
 ACTIVATIONS = ("backup", "always", "gnss_loss")
 
 
+#: the rate limit lets through a state at least this fraction of 1 / rate_hz after the last one sent: the epochs
+#: jitter by an input period (20 ms at 50 Hz IMU), and a strict 1 / rate_hz dropped every state that came early
+RATE_GAP_FRACTION = 0.75
+
 @dataclass(frozen=True)
 class InjectConfig:
     mode: str = "shadow"  # off | shadow (compute and record only) | inject (send)
@@ -363,8 +367,10 @@ class Injector(Stage):
         if s.t_s < self._newest_input_t - c.max_lag_s:
             return out + self._drop(s.t_s, f"stale: more than {c.max_lag_s:g} s behind the sensors")
         tgt = s.t_s if self._newest_input_t == -math.inf else self._newest_input_t - c.autopilot_lag_s
-        if self._last_out_t is not None and tgt - self._last_out_t < 1.0 / c.rate_hz - 1e-6:
-            return out  # rate limit (or an older state finalised beside a newer one): not a fault, not recorded
+        # rate limit (or an older state finalised beside a newer one): not a fault, not recorded. The epoch moves with
+        # the newest input, which jitters by an IMU period: a gap of a quarter period less still counts as one period
+        if self._last_out_t is not None and tgt - self._last_out_t < RATE_GAP_FRACTION / c.rate_hz:
+            return out
         alt_ignored = self._alt_ignored(s)
         why = _invalid(s, c, check_alt=not alt_ignored)
         if why:

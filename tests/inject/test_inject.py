@@ -158,6 +158,25 @@ def test_rate_limit_and_minimum_rate():
         InjectConfig(mode="inject", rate_hz=2.0)
 
 
+def test_rate_limit_keeps_the_rate_when_the_epochs_jitter():
+    """10 Hz states, each final once the first 50 Hz IMU sample past its reorder window arrives (0-20 ms past it):
+    all go out at rate_hz 10 (a strict 0.1 s gap sent about 8 a second), and never two within 0.75 / rate_hz."""
+    import numpy as np
+
+    from companion.events import ImuSample
+
+    inj = Injector(InjectConfig(mode="shadow", rate_hz=10.0))
+    jitter = np.random.default_rng(3).uniform(0.0, 0.02, 100)
+    recs = []
+    for k in range(100):
+        t = 10 + 0.1 * k
+        inj.process(ImuSample(t + 0.25 + jitter[k], (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), 0))
+        recs += [o for o in inj.process(state(t_s=t)) if isinstance(o, GpsInputRecord)]
+    assert len(recs) >= 98
+    gaps = [b.t_s - a.t_s for a, b in zip(recs, recs[1:])]
+    assert min(gaps) >= 0.75 / 10.0 - 1e-9
+
+
 def test_off_mode_builds_nothing():
     inj = Injector(InjectConfig(mode="off"))
     assert inj.process(state()) == [] and inj.built == 0
