@@ -73,6 +73,9 @@ class RecordConfig:
     # service that runs for hours keeps flat memory (an MCAP writer indexes every chunk until it closes);
     # 0 writes one file (the default for interactive runs; the service's example config sets 900)
     segment_s: float = 0.0
+    # disk budget of one run's record (0: none): segments are cut at a quarter of it and the oldest deleted
+    # (companion.record.rotating); with segment_s = 0 files are cut by size only
+    max_total_mb: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -144,7 +147,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "inject.gps_id": (0, 1), "inject.receiver_instance": (0, 1), "inject.satellites": (6, 254),
     "inject.max_lag_s": (0.01, 5.0), "inject.autopilot_lag_s": (0.0, 0.25), "inject.receiver_lag_s": (0.0, 2.0),
     "inject.consistency_window_s": (0.05, 10.0), "inject.gnss_timeout_s": (0.05, 60.0),
-    "record.flush_interval_s": (0.05, 3600.0), "record.segment_s": (0.0, 86400.0),
+    "record.flush_interval_s": (0.05, 3600.0), "record.segment_s": (0.0, 86400.0), "record.max_total_mb": (0.0, 1e7),
     "gravity.accept_min_track_cells": (0.0, 1e4), "gravity.accept_min_signal_ratio": (0.0, 1e9),
     "gravity.sigma_mgal": (1e-3, 1e4),
     "navigator.imu_index": (0, 3), "navigator.gnss_instance": (0, 1), "navigator.gnss_delay_s": (0.0, 1.0),
@@ -157,6 +160,8 @@ _RANGES: dict[str, tuple[float, float]] = {
 }
 #: record.segment_s between 0 (one file) and this is refused: a new file every few seconds is a runaway
 MIN_SEGMENT_S = 10.0
+#: record.max_total_mb between 0 (no budget) and this is refused: segments of a quarter of it would be a few chunks
+MIN_BUDGET_MB = 1.0
 
 
 def setting_range(where: str) -> tuple[float, float] | None:
@@ -288,6 +293,8 @@ def _validate(cfg: Config) -> Config:
         raise ConfigError("record.flush_interval_s must be > 0")
     if 0 < cfg.record.segment_s < MIN_SEGMENT_S:
         raise ConfigError(f"record.segment_s must be 0 (one file) or >= {MIN_SEGMENT_S:g} s, got {cfg.record.segment_s:g}")
+    if 0 < cfg.record.max_total_mb < MIN_BUDGET_MB:
+        raise ConfigError(f"record.max_total_mb must be 0 (no budget) or >= {MIN_BUDGET_MB:g} MB, got {cfg.record.max_total_mb:g}")
     _validate_gravity(cfg.gravity)
     if cfg.gravity.map and any(n not in cfg.streams.rates_hz for n in GRAVITY_STREAMS_HZ):
         cfg = dataclasses.replace(cfg, streams=dataclasses.replace(

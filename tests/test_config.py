@@ -73,6 +73,8 @@ BAD = {
     "absurd gnss delay": (C, {"navigator.gnss_delay_s": 1e300}, "navigator.gnss_delay_s: .* out of range"),
     "huge timeout": (C, {"link.link_timeout_s": 1e9}, "link.link_timeout_s: .* out of range"),
     "nan": ('[link]\nconnect = "tcp:1.2.3.4:5"\nheartbeat_hz = nan\n', {}, "must be finite"),
+    "serial baud": ('[link]\nconnect = "/dev/ttyACM0"\nbaud = 12345\n', {}, "baud rate 12345 is not supported"),
+    "serial not a device": ('[link]\nconnect = "/dev/shm"\n', {}, "not a character device"),
 }
 
 
@@ -81,6 +83,12 @@ def test_bad_settings_are_clear_errors(kind, tmp_path):
     text, overrides, msg = BAD[kind]
     with pytest.raises(ConfigError, match=msg):
         load_config(write(tmp_path, text), overrides)
+
+
+def test_a_serial_device_not_there_yet_is_a_setting_not_an_error():
+    """A missing device is a link that is not up yet (the link manager retries it); its settings are still checked."""
+    cfg = load_config(None, {"link.connect": "/dev/ttyCOMPANIONNOTTHERE", "link.baud": 921600})
+    assert cfg.link.connect == "/dev/ttyCOMPANIONNOTTHERE" and cfg.link.baud == 921600
 
 
 def test_missing_file(tmp_path):

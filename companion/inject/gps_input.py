@@ -23,13 +23,16 @@ Field by field (what ArduPilot's AP_GPS_MAV driver and EKF3 do with it, observed
 * ``gps_id``: the GPS instance fed (0 for GPS1_TYPE = 14, 1 for GPS2_TYPE = 14).
 
 Integrity: a state with a non-finite or out-of-range field, lat = lon = 0, an implausible speed, a
-non-positive or non-finite sigma, or a time not after the previous one is never sent; nor a *stale*
-state (more than ``max_lag_s`` behind the newest sensor event: a navigator catching up after a gap would
-otherwise emit a burst of old positions), nor one that disagrees with a recent 3D fix of the real
-receiver (horizontal distance d with d^2 > ``consistency_chi2`` (sigma_state^2 + sigma_receiver^2) +
-(``receiver_lag_s`` |v|)^2; chi-square 2 dof 99.9 % = 13.816). After such a disagreement nothing is sent
-until a check passes again. Each refusal is counted and recorded on ``/inject/dropped`` with the reason. Every GPS_INPUT built (sent in ``inject`` mode, or what
-would be sent in ``shadow`` mode) is recorded on ``/inject/gps_input``.
+non-positive or non-finite sigma, a field that does not fit its wire type, or a time not after the previous
+one (or ahead of every input) is never sent; nor a *stale* state (more than ``max_lag_s`` behind the newest sensor event: a navigator
+catching up after a gap would otherwise emit a burst of old positions), nor one that disagrees with the real
+receiver. Every state is checked against the receiver's 3D fix nearest to it in time (newer or older, within
+``consistency_window_s``), carried to the state's epoch at the fix's velocity (the state's when the fix has
+none): horizontal distance d with d^2 > ``consistency_chi2`` (sigma_state^2 + sigma_receiver^2) +
+(``receiver_lag_s`` |v|)^2 is a disagreement (chi-square 2 dof 99.9 % = 13.816). After one nothing is sent
+until a check passes again. The fraction of states checked is in the metadata (``cross_check.*``). Each
+refusal is counted and recorded on ``/inject/dropped`` with the reason. Every GPS_INPUT built (sent in
+``inject`` mode, or what would be sent in ``shadow`` mode) is recorded on ``/inject/gps_input``.
 
 Activation: ``activate = "always"`` sends every valid solution (the set-up where the companion is the
 GPS instance the EKF follows); ``"gnss_loss"`` sends only while the real receiver (``receiver_instance``)
@@ -40,7 +43,7 @@ from __future__ import annotations
 
 import math
 import struct
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any, ClassVar
@@ -66,10 +69,16 @@ from companion.nav.frame import LocalFrame
 from companion.pipeline.stage import Stage
 
 MAX_UNIX_S = 4102444800  # 2100-01-01: a later "UTC" is a corrupt clock (and its GPS week overflows uint16)
+MAX_GPS_WEEK = 65535  # GPS_INPUT.time_week is a uint16
+RX_FIXES_KEPT = 32  # recent receiver 3D fixes kept for the cross-check (>= 0.6 s of a 50 Hz receiver)
 
 MODES = ("off", "shadow", "inject")
 ACTIVATIONS = ("backup", "always", "gnss_loss")
 
+
+#: the rate limit lets through a state at least this fraction of 1 / rate_hz after the last one sent: the epochs
+#: jitter by an input period (20 ms at 50 Hz IMU), and a strict 1 / rate_hz dropped every state that came early
+RATE_GAP_FRACTION = 0.75
 
 @dataclass(frozen=True)
 class InjectConfig:
@@ -230,9 +239,12 @@ class Injector(Stage):
         self._floor_v_m = 0.0
         self._last_alt_m: float | None = None  # last altitude sent with sigma_v within max_v_acc_alt_m
         self._newest_input_t = -math.inf
-        self._rx_fix: tuple[float, float, float, float] | None = None  # t, lat, lon, sigma_h of the receiver
+        # the receiver's recent 3D fixes: (t_s, lat, lon, sigma_h, vel_n, vel_e), velocities None when not given
+        self._rx_fixes: deque[tuple[float, float, float, float, float | None, float | None]] = deque(maxlen=RX_FIXES_KEPT)
         self._inconsistent = False
         self._armed = False  # the autopilot's HEARTBEAT armed flag
+        self.cross_checked = 0  # states compared with a receiver fix, of cross_check_states that reached the check
+        self.cross_check_states = 0
 
     # -- stage interface ----------------------------------------------------------------------
     def process(self, item: Any) -> list[Event]:
@@ -271,6 +283,8 @@ class Injector(Stage):
             meta[f"fix_type.{k}"] = str(v)
         for why, n in sorted(self.dropped.items()):
             meta[f"dropped.{why}"] = str(n)
+        meta["cross_check.states"], meta["cross_check.checked"] = str(self.cross_check_states), str(self.cross_checked)
+        meta["cross_check.fraction"] = f"{self.cross_checked / self.cross_check_states:.4f}" if self.cross_check_states else "0"
         return meta
 
     def summary_lines(self) -> list[str]:
@@ -278,12 +292,18 @@ class Injector(Stage):
         fix = ", ".join(f"{FixType(k).name} {v}" for k, v in sorted(self.fix_types.items())) or "none"
         lines = [f"gps_input    mode {c.mode}, gps_id {c.gps_id}: {self.built} built, {self.sent} sent ({fix})"]
         lines += [f"gps_input    not sent {n}: {why}" for why, n in sorted(self.dropped.items())]
+        if self.cross_check_states:
+            lines.append(f"gps_input    receiver cross-check on {self.cross_checked} of {self.cross_check_states} states "
+                         f"({100.0 * self.cross_checked / self.cross_check_states:.1f} %)")
         return lines
 
     # -- activation ---------------------------------------------------------------------------
     def _on_gnss(self, fix: GnssFix) -> list[Event]:
         c = self.config
         if fix.instance != c.receiver_instance:
+            return []
+        if not _finite(fix.t_s):
+            self.dropped["receiver fix with a non-finite time (not used)"] += 1
             return []
         self._last_gnss_t = fix.t_s
         good = fix.fix_type >= FixType.FIX_3D and fix.has_position
@@ -293,11 +313,17 @@ class Injector(Stage):
                 self._floor_h_m = h
             if v is not None and _finite(v):
                 self._floor_v_m = v
-        if fix.gps_week is not None and fix.gps_tow_s is not None and _finite(fix.gps_tow_s) and fix.gps_week > 0:
-            self._gnss_time = (fix.t_s, int(fix.gps_week), float(fix.gps_tow_s))
+        if fix.gps_week is not None and fix.gps_tow_s is not None:
+            if _finite(fix.gps_tow_s) and 0 < fix.gps_week <= MAX_GPS_WEEK and 0.0 <= fix.gps_tow_s < WEEK_S:
+                self._gnss_time = (fix.t_s, int(fix.gps_week), float(fix.gps_tow_s))
+            else:
+                self.dropped["receiver GPS time out of range (not used)"] += 1
+        if good and not _finite(fix.t_s, fix.lat_deg, fix.lon_deg):
+            good = False
         if good:
             h = receiver_sigma(fix, c.uere_m)[0]
-            self._rx_fix = (fix.t_s, fix.lat_deg, fix.lon_deg, h if h is not None and _finite(h) else c.uere_m)
+            vn, ve = (fix.vel_n_mps, fix.vel_e_mps) if _finite(fix.vel_n_mps, fix.vel_e_mps) else (None, None)
+            self._rx_fixes.append((fix.t_s, fix.lat_deg, fix.lon_deg, h if h is not None and _finite(h) else c.uere_m, vn, ve))
             self._last_good_gnss_t = fix.t_s
         else:
             self._last_bad_gnss_t = fix.t_s
@@ -342,14 +368,18 @@ class Injector(Stage):
             return out
         if not _finite(s.t_s):
             return out + self._drop(0.0, "non-finite time")
+        if -math.inf < self._newest_input_t < s.t_s - c.max_lag_s:  # a state is built from inputs: ahead is corrupt
+            return out + self._drop(s.t_s, "time ahead of every input")
         if self._last_state_t is not None and s.t_s <= self._last_state_t:
             return out + self._drop(s.t_s, "time not after the previous state")
         self._last_state_t = s.t_s
         if s.t_s < self._newest_input_t - c.max_lag_s:
             return out + self._drop(s.t_s, f"stale: more than {c.max_lag_s:g} s behind the sensors")
         tgt = s.t_s if self._newest_input_t == -math.inf else self._newest_input_t - c.autopilot_lag_s
-        if self._last_out_t is not None and tgt - self._last_out_t < 1.0 / c.rate_hz - 1e-6:
-            return out  # rate limit (or an older state finalised beside a newer one): not a fault, not recorded
+        # rate limit (or an older state finalised beside a newer one): not a fault, not recorded. The epoch moves with
+        # the newest input, which jitters by an IMU period: a gap of a quarter period less still counts as one period
+        if self._last_out_t is not None and tgt - self._last_out_t < RATE_GAP_FRACTION / c.rate_hz:
+            return out
         alt_ignored = self._alt_ignored(s)
         why = _invalid(s, c, check_alt=not alt_ignored)
         if why:
@@ -364,17 +394,14 @@ class Injector(Stage):
             if waited > c.max_lag_s:
                 return out + self._drop(s.t_s, f"stale: its input arrived more than {c.max_lag_s:g} s ago")
         rec = self._record(s, alt_ignored, carried_s)
+        msg, why = _encoded(rec)  # every field against its wire type, in every mode: a record is what would be sent
+        if why:
+            return out + self._drop(s.t_s, f"not encodable ({why})")
         self._last_out_t = s.t_s
         self.built += 1
         self.fix_types[rec.fix_type] += 1
         if c.mode == "inject" and self.sender is not None:
-            try:  # packing checks every field against its wire type: a value out of it must not stop the stage
-                sent = bool(self.sender(encode_gps_input(rec)))
-            except (struct.error, ValueError, OverflowError) as err:
-                self.built -= 1
-                self.fix_types[rec.fix_type] -= 1
-                return out + self._drop(s.t_s, f"not encodable ({err.__class__.__name__})")
-            if sent:
+            if self.sender(msg):
                 self.sent += 1
                 rec = _replace_sent(rec)
                 if self.on_sent is not None:
@@ -385,18 +412,22 @@ class Injector(Stage):
         return out
 
     def _cross_check(self, s: FusedState) -> str:
-        """Why the state disagrees with the real receiver ("" when it agrees or cannot be checked)."""
+        """Why the state disagrees with the real receiver ("" when it agrees or cannot be checked): against the 3D
+        fix nearest to it in time within consistency_window_s, carried to the state's epoch."""
         c = self.config
-        fx = self._rx_fix
-        if fx is None or not 0.0 <= s.t_s - fx[0] <= c.consistency_window_s:
+        self.cross_check_states += 1
+        fx = min(self._rx_fixes, key=lambda f: abs(s.t_s - f[0]), default=None)
+        if fx is None or abs(s.t_s - fx[0]) > c.consistency_window_s:
             return "inconsistent with the receiver (not yet re-checked)" if self._inconsistent else ""
+        self.cross_checked += 1
         dt = s.t_s - fx[0]
+        vn, ve = (fx[4], fx[5]) if fx[4] is not None else (s.vel_n_mps, s.vel_e_mps)
         n, e, _ = LocalFrame(fx[1], fx[2], 0.0).to_ned_m(s.lat_deg, s.lon_deg, 0.0)
-        dn, de = float(n) - s.vel_n_mps * dt, float(e) - s.vel_e_mps * dt
-        d2 = dn * dn + de * de
-        speed2 = s.vel_n_mps**2 + s.vel_e_mps**2
-        allowed2 = c.consistency_chi2 * (s.sigma_h_m**2 + fx[3] ** 2) + speed2 * c.receiver_lag_s**2
-        self._inconsistent = d2 > allowed2
+        dn, de = float(n) - vn * dt, float(e) - ve * dt
+        # hypot: no square of a huge (finite) sigma or velocity overflows
+        lag_m = math.hypot(s.vel_n_mps, s.vel_e_mps) * c.receiver_lag_s
+        allowed_m = math.hypot(math.sqrt(c.consistency_chi2) * math.hypot(s.sigma_h_m, fx[3]), lag_m)
+        self._inconsistent = not math.hypot(dn, de) <= allowed_m
         if self._inconsistent:
             return "inconsistent with the receiver"
         return ""
@@ -438,6 +469,9 @@ class Injector(Stage):
             week, week_ms = gps_week_from_unix(GPS_EPOCH_UNIX_S - GPS_LEAP_S + wk * WEEK_S + tow + (s.t_s - t0))
         elif self._utc is not None:
             week, week_ms = gps_week_from_unix(self._utc.unix_time_s + (s.t_s - self._utc.t_s))
+        if not 0 <= week <= MAX_GPS_WEEK:
+            self.dropped["GPS week beyond uint16: time sent as unknown (0/0)"] += 1
+            week = week_ms = 0
         boot_s = max(0.0, s.t_s - self._boot_offset_s)
         yaw = 0
         if c.send_yaw and _finite(s.yaw_rad):
@@ -470,6 +504,21 @@ def _replace_sent(rec: GpsInputRecord) -> GpsInputRecord:
     return replace(rec, sent=True)
 
 
+def _encoded(rec: GpsInputRecord) -> tuple[Any, str]:
+    """(pymavlink message, "") for a record whose every field fits its wire type, else (None, the first that does not)."""
+    try:
+        msg = encode_gps_input(rec)
+    except (ValueError, TypeError, OverflowError) as err:
+        return None, str(err)
+    fmt = msg.unpacker.format.lstrip("<")
+    for code, name in zip(fmt, msg.ordered_fieldnames, strict=True):
+        try:
+            struct.pack("<" + code, getattr(msg, name))
+        except (struct.error, OverflowError, TypeError):
+            return None, f"{name} does not fit its wire type"
+    return msg, ""
+
+
 def _invalid(s: FusedState, c: InjectConfig, check_alt: bool = True) -> str:
     """Why a fused state cannot be stood behind ("" when it can); check_alt False: its altitude and vertical
     velocity are not sent, so neither is judged."""
@@ -484,7 +533,7 @@ def _invalid(s: FusedState, c: InjectConfig, check_alt: bool = True) -> str:
     if not _finite(s.vel_n_mps, s.vel_e_mps, s.vel_d_mps):
         return "non-finite velocity"
     vd = s.vel_d_mps if check_alt else 0.0  # an ignored vertical channel is not judged
-    if math.sqrt(s.vel_n_mps**2 + s.vel_e_mps**2 + vd**2) > c.max_speed_mps:
+    if math.hypot(s.vel_n_mps, s.vel_e_mps, vd) > c.max_speed_mps:
         return f"speed above {c.max_speed_mps:g} m/s"
     if not (_finite(s.sigma_h_m, s.sigma_v_m) and s.sigma_h_m > 0 and s.sigma_v_m > 0):
         return "no valid covariance"

@@ -19,6 +19,15 @@ One reader thread owns the transport. What it does on each link event (each also
   ``reconnect_max_s`` (reset once an autopilot is heard again).
 * **bad frames**: CRC errors, garbage and (with signing) unsigned or wrongly signed frames are dropped by
   the parser; the decoder counts them ("bad frame") with messages from other systems and malformed fields.
+* **shedding** / **caught_up**: the reader is behind the link (more than :data:`SHED_PENDING_BYTES` still queued
+  in the kernel, or what it read arrived more than :data:`SHED_AGE_S` ago): IMU frames are thinned before parsing
+  (:class:`~companion.mavlink.shed.ImuShedder`, to twice the requested IMU rate) until it has kept up for
+  :data:`SHED_HOLD_S`; ``counts["imu_frames_shed"]`` says how many went.
+* **failed**: the reader thread hit an error it cannot handle: it ends (and the runtime's watchdog pings stop).
+
+Everything the thread produces reaches the event loop through one queue with at most one pending wake-up
+(``call_soon_threadsafe``), whatever the message rate, so asyncio's self-pipe never fills (a full one would eat
+the byte that wakes the loop for a signal).
 
 Signing (MAVLink 2): with a key, every frame we send is signed and only correctly signed frames are
 accepted (unless ``allow_unsigned``).
@@ -29,7 +38,7 @@ from __future__ import annotations
 import asyncio
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -41,6 +50,7 @@ from companion.mavlink.transport import LinkClosed, Transport, open_transport
 from companion.mavlink.address import parse_url
 from companion.mavlink.dialect import mavlink as mavlink2
 from companion.mavlink.decode import MavlinkDecoder
+from companion.mavlink.shed import ImuShedder
 
 MAV_TYPE_ONBOARD_CONTROLLER = mavlink2.MAV_TYPE_ONBOARD_CONTROLLER
 MAV_AUTOPILOT_INVALID = mavlink2.MAV_AUTOPILOT_INVALID
@@ -49,6 +59,12 @@ MAV_CMD_SET_MESSAGE_INTERVAL = mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL
 MAV_RESULT_ACCEPTED = mavlink2.MAV_RESULT_ACCEPTED
 #: seconds since 2015-01-01, the MAVLink signing epoch
 _SIGNING_EPOCH_UNIX_S = 1420070400
+#: the reader is behind when more than this is still queued after a read (about 400 frames, 15 ms of parsing) ...
+SHED_PENDING_BYTES = 16 * 1024
+#: ... or when the bytes it read arrived this long ago
+SHED_AGE_S = 0.05
+#: shedding ends once the reader has not been behind for this long
+SHED_HOLD_S = 1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -100,10 +116,37 @@ class MavlinkLink:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._put: Callable[[Any], None] | None = None
+        imu_hz = streams.rates_hz.get("RAW_IMU", 50.0)
+        self.shedder = ImuShedder(0.5 / imu_hz if imu_hz > 0 else 0.01)
+        self._shed_until: float | None = None  # shedding while set: until this clock time unless behind again
+        self._shed_start = 0
 
     # -- public -------------------------------------------------------------------------------
     def start(self, loop: asyncio.AbstractEventLoop, put: Callable[[Any], None]) -> None:
-        self._put = lambda item: loop.call_soon_threadsafe(put, item)
+        outbox: deque = deque()
+        lock = threading.Lock()
+        pending = [False]  # a wake-up is scheduled and has not run yet
+
+        def deliver() -> None:  # in the loop: everything posted since the last wake-up, in order
+            with lock:
+                items = list(outbox)
+                outbox.clear()
+                pending[0] = False
+            for item in items:
+                put(item)
+
+        def post(item) -> None:  # in the reader thread
+            with lock:
+                outbox.append(item)
+                if pending[0]:
+                    return
+                pending[0] = True
+            try:
+                loop.call_soon_threadsafe(deliver)
+            except RuntimeError:
+                pass  # the loop is closed: nobody is listening any more
+
+        self._put = post
         self._thread = threading.Thread(target=self._run, name="mavlink-link", daemon=True)
         self._thread.start()
 
@@ -152,6 +195,13 @@ class MavlinkLink:
                 self._transport = None
 
     def _run(self) -> None:
+        try:
+            self._serve()
+        except Exception as err:  # noqa: BLE001 - say why the reader ends; the watchdog stops pinging
+            self._status("failed", f"link reader stopped: {type(err).__name__}: {err}")
+            self._close()
+
+    def _serve(self) -> None:
         c = self.config
         backoff = c.reconnect_min_s
         while not self._stop.is_set():
@@ -210,6 +260,27 @@ class MavlinkLink:
             self.counts["stream_requests"] += 1
         self._status("streams", f"{why}: " + ", ".join(f"{n} {self.streams.rates_hz[n]:g} Hz" for n in names))
 
+    def _shed(self, data: bytes, tr: Transport, now: float) -> bytes:
+        """Behind the link: the IMU frames thinned before the parser sees them (see the module's doc)."""
+        queued = tr.last_pending
+        behind = queued > SHED_PENDING_BYTES or tr.last_age_s > SHED_AGE_S
+        if behind:
+            if self._shed_until is None:
+                self._shed_start = self.shedder.shed
+                self.shedder.reset()
+                self._status("shedding", f"behind the link ({queued} bytes queued, input {tr.last_age_s:.3f} s "
+                                          f"old): IMU frames thinned to {1 / self.shedder.min_interval_s:g} Hz")
+            self._shed_until = now + SHED_HOLD_S
+        elif self._shed_until is not None and now >= self._shed_until:
+            self._shed_until = None
+            self._status("caught_up", f"{self.shedder.shed - self._shed_start} IMU frames shed")
+        if self._shed_until is None:
+            return data
+        before = self.shedder.shed
+        data = self.shedder.filter(data)
+        self.counts["imu_frames_shed"] += self.shedder.shed - before
+        return data
+
     def _session(self, tr: Transport) -> bool:
         """Read until the link is lost or stop; True if an autopilot was heard in this session."""
         c, s = self.config, self.streams
@@ -233,8 +304,9 @@ class MavlinkLink:
                 return heard
             now = self.clock()
             if data:
-                recv_perf = time.perf_counter()
+                recv_perf = time.perf_counter() - tr.last_age_s
                 self.bytes_in += len(data)
+                data = self._shed(data, tr, now)
                 with self._send_lock:  # the parser's signing state is shared with send()
                     msgs = self.mav.parse_buffer(data) or []
                 events: list[Event] = []

@@ -3,25 +3,92 @@
 Each transport is blocking-with-timeout and used from one reader thread; ``write`` may be called from
 another thread (the reader never writes while holding the transport's state). A closed peer raises
 :class:`LinkClosed`; the link manager reconnects.
+
+How far behind the reader is, after each ``recv``: ``last_pending`` (bytes the kernel still holds) and
+``last_age_s``, how long ago the bytes just read reached the machine, from the kernel's receive time stamps
+(``SO_TIMESTAMPNS``): UDP, the oldest datagram read (conservative); TCP, the newest bytes read (what the kernel
+gives). Serial (no time stamps): the first time the reader saw the kernel's queue reach those bytes
+(:class:`ArrivalTracker`), exact to one read while the reader keeps reading. UDP reads take every datagram
+waiting (up to :data:`UDP_DRAIN_BYTES`) at once.
 """
 
 from __future__ import annotations
 
+import fcntl
 import os
 import select
 import socket
+import struct
 import termios
+import time
 import tty
+from collections import deque
 
 from companion.sources.base import SourceError
-from companion.mavlink.address import LinkSpec
+from companion.mavlink.address import SERIAL_BAUDS as _BAUDS, LinkSpec
 
 
 class LinkClosed(Exception):
     """The peer closed the connection or the device went away."""
 
 
+#: one UDP read takes the datagrams waiting up to this many bytes
+UDP_DRAIN_BYTES = 1 << 18
+_SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)  # Linux: a struct timespec (CLOCK_REALTIME) per datagram
+_TIMESPEC = struct.Struct("@qq")
+
+
+def _enable_stamps(sock: socket.socket) -> None:
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+    except OSError:
+        pass  # no kernel time stamps: ages read as 0 (unknown)
+
+
+def _stamp_age_s(anc) -> float | None:
+    """Age of the kernel's receive time stamp in recvmsg's ancillary data (None when there is none). The kernel
+    stamps wall-clock time: clamped, so a clock step cannot make it negative or absurd."""
+    for level, kind, raw in anc:
+        if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(raw) >= _TIMESPEC.size:
+            sec, nsec = _TIMESPEC.unpack_from(raw)
+            return min(max(time.time() - (sec + nsec * 1e-9), 0.0), 60.0)
+    return None
+
+
+def _queued_bytes(fd) -> int:
+    """Bytes waiting in the kernel's receive queue of a socket or tty (FIONREAD); 0 when it cannot tell."""
+    try:
+        return struct.unpack("@i", fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"))[0]
+    except (OSError, ValueError):
+        return 0
+
+
+class ArrivalTracker:
+    """When the bytes of a byte stream arrived, from what the kernel's queue held at each read.
+
+    After each read ``observe(n, queued)`` records (now, offset known to have arrived = bytes read + queued); the
+    bytes just read arrived by the first such record that covers their end offset."""
+
+    def __init__(self, clock=time.perf_counter) -> None:
+        self.clock = clock
+        self.read = 0
+        self._seen: deque[tuple[float, int]] = deque()
+
+    def observe(self, nbytes: int, queued: int) -> float:
+        """Age (s) of the last byte of a read of ``nbytes``, ``queued`` bytes still waiting after it."""
+        now = self.clock()
+        self.read += nbytes
+        self._seen.append((now, self.read + queued))
+        while self._seen[0][1] < self.read:
+            self._seen.popleft()
+        return now - self._seen[0][0]
+
+
 class Transport:
+    #: after a recv: how long ago its newest bytes arrived (0 when unknown), and how many are still queued
+    last_age_s: float = 0.0
+    last_pending: int = 0
+
     def recv(self, timeout_s: float) -> bytes:
         """Bytes that arrived within ``timeout_s`` (b"" when none)."""
         raise NotImplementedError
@@ -41,6 +108,7 @@ class UdpTransport(Transport):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+        _enable_stamps(self.sock)
         if listen:
             self.sock.bind((host, port))
             self.peer = None
@@ -50,15 +118,28 @@ class UdpTransport(Transport):
 
     def recv(self, timeout_s: float) -> bytes:
         r, _, _ = select.select([self.sock], [], [], timeout_s)
+        self.last_age_s = 0.0
         if not r:
             return b""
-        try:
-            data, addr = self.sock.recvfrom(65536)
-        except ConnectionRefusedError:
-            return b""  # udpout with nobody listening yet (ICMP port unreachable)
-        if self.listen:
-            self.peer = addr
-        return data
+        chunks: list[bytes] = []
+        size = 0
+        age_s = None
+        while size < UDP_DRAIN_BYTES:
+            try:
+                data, anc, _flags, addr = self.sock.recvmsg(65536, 64, socket.MSG_DONTWAIT)
+            except (BlockingIOError, InterruptedError):
+                break
+            except ConnectionRefusedError:
+                break  # udpout with nobody listening yet (ICMP port unreachable)
+            if age_s is None:
+                age_s = _stamp_age_s(anc)  # the oldest datagram of the read
+            if self.listen:
+                self.peer = addr
+            chunks.append(data)
+            size += len(data)
+        self.last_age_s = age_s or 0.0
+        self.last_pending = _queued_bytes(self.sock)  # the next datagram's size: nonzero when some were left
+        return b"".join(chunks)
 
     def write(self, data: bytes) -> bool:
         if self.peer is None:
@@ -79,6 +160,7 @@ class TcpTransport(Transport):
     def __init__(self, host: str, port: int, listen: bool, connect_timeout_s: float = 2.0) -> None:
         self.listen_sock = None
         self.sock = None
+        self._arrivals = ArrivalTracker()
         if listen:
             self.listen_sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
             self.listen_sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -90,6 +172,7 @@ class TcpTransport(Transport):
 
     def _setup(self, s: socket.socket) -> None:
         s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        _enable_stamps(s)
         s.settimeout(None)
         s.setblocking(True)
         self.sock = s
@@ -105,11 +188,15 @@ class TcpTransport(Transport):
         if not r:
             return b""
         try:
-            data = self.sock.recv(65536)
+            data, anc, _flags, _addr = self.sock.recvmsg(65536, 64)
         except OSError as err:
             raise LinkClosed(f"connection error ({err.strerror or err})") from None
         if not data:
             raise LinkClosed("connection closed by the peer")
+        self.last_pending = _queued_bytes(self.sock)
+        tracked = self._arrivals.observe(len(data), self.last_pending)
+        stamped = _stamp_age_s(anc)
+        self.last_age_s = tracked if stamped is None else stamped
         return data
 
     def write(self, data: bytes) -> bool:
@@ -129,9 +216,6 @@ class TcpTransport(Transport):
         self.sock = self.listen_sock = None
 
 
-_BAUDS = {int(n[1:]): getattr(termios, n) for n in dir(termios) if n.startswith("B") and n[1:].isdigit()}
-
-
 class SerialTransport(Transport):
     """A tty in raw mode at ``baud`` (8N1, no flow control), through termios."""
 
@@ -139,6 +223,7 @@ class SerialTransport(Transport):
         if baud not in _BAUDS:
             raise SourceError(f"{device}: baud rate {baud} is not supported (use one of {sorted(_BAUDS)[-8:]})")
         self.fd = os.open(device, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        self._arrivals = ArrivalTracker()
         try:
             tty.setraw(self.fd)
             attr = termios.tcgetattr(self.fd)
@@ -161,6 +246,8 @@ class SerialTransport(Transport):
             raise LinkClosed(f"serial device error ({err.strerror})") from None
         if not data:
             raise LinkClosed("serial device closed")
+        self.last_pending = _queued_bytes(self.fd)
+        self.last_age_s = self._arrivals.observe(len(data), self.last_pending)
         return data
 
     def write(self, data: bytes) -> bool:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from filterpy.kalman import KalmanFilter
+from companion.nav.kalman import KalmanFilter
 
 from companion.events import Attitude, ImuSample
 from companion.nav.ins import StrapdownIns, dcm_from_quat, quat_from_euler
@@ -51,7 +51,7 @@ class InsFilter:
         self._kf_t = t
 
     def _ins_apply(self, m: Measurement) -> tuple[bool, np.ndarray]:
-        """The one update of the error-state KF (eqs. 7, 8, 10, filterpy's algebra): predict to the measurement,
+        """The one update of the error-state KF (eqs. 7, 8, 10; companion.nav.kalman): predict to the measurement,
         gate, record a MeasurementUpdate, update and feed the error estimate back into the INS."""
         self._ins_predict(max(m.t_s, self._kf_t))
         pos, vel = self._ins_state_at(m.t_s, m.delay_s)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from filterpy.kalman import KalmanFilter
+from companion.nav.kalman import KalmanFilter
 
 from companion.nav.measurements import Measurement, PositionMeasurement, gate
 from companion.nav.outputs import MeasurementUpdate
@@ -42,7 +42,7 @@ class KinematicFilter:
         self._kin_t = t
 
     def _kin_apply(self, m: Measurement, record: bool) -> tuple[bool, np.ndarray, float]:
-        """The one update of the constant-velocity KF (filterpy's algebra): predict to the measurement, gate,
+        """The one update of the constant-velocity KF (companion.nav.kalman): predict to the measurement, gate,
         record a MeasurementUpdate (if ``record``: the filter drives the output), update."""
         self._kin_predict(max(m.t_s, self._kin_t))
         kf = self._kin

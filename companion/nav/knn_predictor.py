@@ -53,7 +53,6 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 
 @dataclass(frozen=True)
@@ -129,7 +128,7 @@ class KnnPredictor:
         self._conts = np.zeros((c.max_entries, 3))
         self._entry_t = np.zeros(c.max_entries)
         self._n_added = 0  # total entries ever added (ring position = n_added % max_entries)
-        self._tree: cKDTree | None = None
+        self._tree = None  # scipy.spatial.cKDTree, imported at the first build (1 s of the live start-up)
         self._tree_n_added = 0  # n_added when the tree was built
         self._tree_rows: np.ndarray | None = None  # ring rows the tree indexes
         self._fixes: deque[tuple[float, np.ndarray, np.ndarray | None]] = deque(maxlen=c.history_fixes)
@@ -173,6 +172,8 @@ class KnnPredictor:
         ):
             n = self.n_entries
             self._tree_rows = np.arange(n)
+            from scipy.spatial import cKDTree
+
             self._tree = cKDTree(self._keys[:n].copy())
             self._tree_n_added = self._n_added
 

@@ -11,7 +11,7 @@ flight log does not have. This module does the loosely coupled equivalent on pos
   ``psi' = -C dbg``, biases first-order Gauss-Markov. The strapdown equations run for every IMU sample
   in plain Python; the KF covariance is propagated at the 10 Hz output rate (and before each update)
   with ``Phi = I + F dt + (F dt)^2 / 2`` built from the mean specific force of the interval (eq. 9), and
-  updates use filterpy's algebra (eqs. 7, 8, 10). After each update the error estimate is fed back into
+  updates use the Joseph-form algebra of companion.nav.kalman (eqs. 7, 8, 10). After each update the error estimate is fed back into
   the INS and reset to zero.
 * **Kinematic mode**: a 6-state constant-velocity KF (white-noise acceleration) on the same
   measurements. Used when the source has no IMU, or its IMU rate is below ``min_imu_rate_hz`` (a
@@ -41,7 +41,7 @@ import math
 from collections import deque
 
 import numpy as np
-from filterpy.kalman import KalmanFilter
+from companion.nav.kalman import KalmanFilter
 
 from companion.nav.aids import Aids
 from companion.nav.baro import BaroAid

@@ -1,7 +1,8 @@
 """Read an MCAP record back: summary of topics, counts and times, metadata; recovery of killed writes.
 
-A finalised file is read through its summary section (statistics, chunk and message indexes), without
-decompressing chunks. A file whose writer was killed has no summary: it is streamed record by record
+A finalised file is read through its summary section (statistics, chunk and message indexes); its chunks are
+then streamed once to check their CRCs (:mod:`companion.record.chunks`), so damaged data is not called whole.
+A file whose writer was killed has no summary: it is streamed record by record
 up to the truncation point, and everything in complete chunks is reported (``Summary.recovered``).
 """
 
@@ -16,6 +17,8 @@ from pathlib import Path
 from mcap.reader import SeekingReader
 from mcap.records import Channel, Footer, Header, Message, MessageIndex, Metadata, Schema
 from mcap.stream_reader import StreamReader
+
+from companion.record.chunks import chunk_damage
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 _FOOTER_RECORD_SIZE = 1 + 8 + 8 + 8 + 4  # opcode, length, summary_start, summary_offset_start, crc
@@ -62,7 +65,13 @@ class Summary:
     end_ns: int | None
     note: str = ""  # why the file was read by streaming / where it ends
     readable_bytes: int = 0  # bytes up to the end of the last complete record read
+    damaged_chunks: tuple[str, ...] = ()  # "byte OFFSET: what is wrong" for every chunk failing its check
     _by_topic: dict = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def damaged(self) -> bool:
+        """A chunk's CRC or compression fails: some of the messages counted cannot be read back."""
+        return bool(self.damaged_chunks)
 
     @property
     def recovered(self) -> bool:
@@ -109,8 +118,9 @@ def _check_mcap(path: Path) -> int:
     return size
 
 
-def summarize(path: str | os.PathLike) -> Summary:
-    """Summarise an MCAP file: per-topic schema, count, first/last log time; metadata; finalised or not.
+def summarize(path: str | os.PathLike, *, check_crcs: bool = True) -> Summary:
+    """Summarise an MCAP file: per-topic schema, count, first/last log time; metadata; finalised or not; damaged
+    chunks (``check_crcs``: a finalised file's chunks are streamed once; a killed one's are always checked).
 
     Raises RecordError for a missing, empty or non-MCAP file; never raises for a truncated one.
     """
@@ -123,7 +133,7 @@ def summarize(path: str | os.PathLike) -> Summary:
             tail_ok = f.read() == MCAP_MAGIC
         if tail_ok:
             try:
-                return _from_summary_section(path, size)
+                return _from_summary_section(path, size, check_crcs)
             except _NoSummary as exc:
                 note = str(exc)
             except Exception as exc:  # damaged summary section: fall back to reading the data
@@ -135,7 +145,7 @@ class _NoSummary(Exception):
     pass
 
 
-def _from_summary_section(path: Path, size: int) -> Summary:
+def _from_summary_section(path: Path, size: int, check_crcs: bool) -> Summary:
     with open(path, "rb") as f:
         reader = SeekingReader(f, record_size_limit=size)
         summary = reader.get_summary()
@@ -147,6 +157,11 @@ def _from_summary_section(path: Path, size: int) -> Summary:
         if bounds is None:
             raise _NoSummary("no message indexes; counted by reading the data")
         metadata = tuple((m.name, dict(m.metadata)) for m in reader.iter_metadata())
+        damaged = []
+        for c in summary.chunk_indexes if check_crcs else ():
+            why = chunk_damage(f, c.chunk_start_offset, size)
+            if why:
+                damaged.append(f"byte {c.chunk_start_offset}: {why}")
     per_channel = {
         cid: (stats.channel_message_counts.get(cid, 0),) + bounds.get(cid, (None, None)) for cid in summary.channels
     }
@@ -162,6 +177,7 @@ def _from_summary_section(path: Path, size: int) -> Summary:
         chunk_count=stats.chunk_count,
         note="",
         readable_bytes=size,
+        damaged_chunks=tuple(damaged),
     )
 
 
@@ -294,7 +310,8 @@ def _from_stream(path: Path, size: int, note: str) -> Summary:
     )
 
 
-def _build(path, size, *, finalised, header, schemas, channels, per_channel, metadata, chunk_count, note, readable_bytes):
+def _build(path, size, *, finalised, header, schemas, channels, per_channel, metadata, chunk_count, note, readable_bytes,
+           damaged_chunks=()):
     merged: dict[str, list] = {}
     for cid, ch in channels.items():
         count, first, last = per_channel.get(cid, (0, None, None))
@@ -326,6 +343,7 @@ def _build(path, size, *, finalised, header, schemas, channels, per_channel, met
         end_ns=max(lasts) if lasts else None,
         note=note,
         readable_bytes=readable_bytes,
+        damaged_chunks=tuple(damaged_chunks),
     )
 
 
@@ -377,9 +395,16 @@ def format_summary(summary: Summary, *, max_value_chars: int = 160) -> str:
     """Readable table for ``companion inspect``: topics (schema, count, rate, first/last time), span, metadata."""
     s = summary
     state = "finalised" if s.finalised else "RECOVERED (not finalised)"
+    if s.damaged:
+        of = f" of {s.chunk_count}" if s.chunk_count >= 0 else ""
+        state += f", {len(s.damaged_chunks)}{of} chunks DAMAGED: their messages cannot be read"
     lines = [
         f"file      {s.path}  ({_fmt_size(s.size_bytes)}, {state})",
     ]
+    for d in s.damaged_chunks[:10]:
+        lines.append(f"damaged   chunk at {d}")
+    if len(s.damaged_chunks) > 10:
+        lines.append(f"damaged   ... and {len(s.damaged_chunks) - 10} more chunks")
     if s.note:
         lines.append(f"note      {s.note}")
     if s.library:

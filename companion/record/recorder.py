@@ -21,6 +21,10 @@ in progress:
   demand (e.g. from a wall-clock timer in the live loop when messages stop arriving).
 * ``close()`` writes the summary section and footer (``Writer.finish()``); it is idempotent and runs from
   ``finally`` / ``with`` blocks, so SIGTERM/SIGINT handled by cancelling the asyncio task finalise the file.
+* A write error (full disk, read-only or removed drive) cuts the file back to its last whole record, so it
+  reads to its end like a killed writer's, and stops the recording: by default with one line on stderr
+  naming the file and nothing raised (the live companion navigates on), with ``raise_errors`` as one OSError
+  naming it (a replay, whose product is the record).
 
 :func:`companion.record.inspect.summarize` reads a finalised file through its summary section and a
 killed one by streaming records up to the truncation point.
@@ -90,7 +94,7 @@ class _DirectFile:
 
     def __init__(self, path: Path):
         self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-        self._pos = 0
+        self._pos = 0  # bytes written in full
 
     def write(self, data) -> int:
         n = len(data)
@@ -109,10 +113,30 @@ class _DirectFile:
     def fsync(self) -> None:
         os.fsync(self._fd)
 
+    def cut(self, pos: int) -> None:
+        """Best effort: drop what a failed write left after ``pos`` (a half-written chunk), freeing its space."""
+        try:
+            os.ftruncate(self._fd, pos)
+        except OSError:
+            pass
+
     def close(self) -> None:
         if self._fd >= 0:
             fd, self._fd = self._fd, -1
             os.close(fd)
+
+
+class _Nowhere:
+    """Where the Writer writes when the file could not even be created (the recorder has stopped): nothing."""
+
+    def write(self, data) -> int:
+        return len(data)
+
+    def tell(self) -> int:
+        return 0
+
+    def flush(self) -> None:
+        pass
 
 
 class Recorder:
@@ -128,6 +152,11 @@ class Recorder:
         :class:`~companion.record.live_view.LiveView` (Foxglove WebSocket server).
     :param null_style: how derived schemas say "may be null": only "jsonschema" (standard ``[X, "null"]``
         type lists), see :mod:`companion.record.schemas`.
+    :param raise_errors: a write error (full disk, removed drive) raises OSError naming the file, once (a replay,
+        whose product is the record). By default (the live companion) it stops the recording instead: one line on
+        stderr naming the file, every later message dropped and counted, nothing raised -- also when the file
+        cannot even be created, so navigation and injection go on whatever the disk does.
+    :param announce_errors: False: not even that line (a caller that retries says it itself).
     """
 
     def __init__(
@@ -141,6 +170,8 @@ class Recorder:
         null_style: str = "jsonschema",
         clock: RecordClock | None = None,
         live_view: Any = None,
+        raise_errors: bool = False,
+        announce_errors: bool = True,
     ):
         if compression not in _COMPRESSION:
             raise ValueError(f"compression must be one of {sorted(_COMPRESSION)}, not {compression!r}")
@@ -149,13 +180,21 @@ class Recorder:
         if chunk_size <= 0 or not flush_interval_s > 0:
             raise ValueError("chunk_size and flush_interval_s must be positive")
         self.path = Path(path)
+        self._raise = raise_errors
+        self._announce = announce_errors
         self._closed = True  # until the file is open, close() has nothing to do
-        self._file = _DirectFile(self.path)
+        #: the OS error that stopped recording (a full disk, a removed drive): the recorder then drops every
+        #: later message (counted in ``dropped_after_error``) and never raises again, so a write error does not stop
+        #: what it records (navigation, injection); it says so once, on stderr, naming the file
+        self.write_error: OSError | None = None
+        self.dropped_after_error = 0
         try:
-            self._writer = Writer(self._file, chunk_size=_NEVER, compression=_COMPRESSION[compression])
-        except BaseException:
-            self._file.close()
-            raise
+            self._file: _DirectFile | None = _DirectFile(self.path)
+        except OSError as err:
+            self._file = None
+            self._failed(err)
+        self._writer = Writer(self._file if self._file is not None else _Nowhere(),
+                              chunk_size=_NEVER, compression=_COMPRESSION[compression])
         self._chunk_size = int(chunk_size)
         self._interval_ns = max(1, round(flush_interval_s * 1e9))
         self._fsync = fsync
@@ -166,11 +205,6 @@ class Recorder:
         self._chunk_t0: int | None = None  # log time of the open chunk's first message
         self._busy = False
         self._close_requested = False
-        #: the OS error that stopped recording (a full disk, a removed drive): the recorder then drops every
-        #: later message (counted in ``dropped_after_error``) and never raises again, so a write error does not stop
-        #: what it records (navigation, injection); it says so once, on stderr, naming the file
-        self.write_error: OSError | None = None
-        self.dropped_after_error = 0
         # (class, topic) -> (channel id, (field names, getter) or None, to_dict)
         self._dc_channels: dict[tuple[type, str | None], tuple[int, Any, Any]] = {}
         self._named_channels: dict[str, int] = {}
@@ -181,8 +215,14 @@ class Recorder:
         self._seq: dict[int, int] = {}
         self._closed = False
         version_ = _companion_version()
-        self._writer.start(profile="", library=f"companion/{version_}; {LIBRARY_IDENTIFIER}")
-        self.add_metadata("companion", {"version": version_, "mcap": _dist_version("mcap")})
+        try:
+            self._io(self._writer.start, "", f"companion/{version_}; {LIBRARY_IDENTIFIER}")
+            self.add_metadata("companion", {"version": version_, "mcap": _dist_version("mcap")})
+        except BaseException:  # raise_errors: no recorder to close later
+            self._closed = True
+            if self._file is not None:
+                self._file.close()
+            raise
 
     # ------------------------------------------------------------------ writing
 
@@ -191,6 +231,9 @@ class Recorder:
 
         ``topic`` defaults to the class's ``topic`` attribute; the log time is ``item.t_s``.
         """
+        if self.write_error is not None and self.live_view is None:  # recording stopped: not even encoded
+            self.dropped_after_error += 1
+            return
         entry = self._dc_channels.get((type(item), topic))
         if entry is None:
             entry = self._register_dataclass(type(item), topic)
@@ -211,6 +254,9 @@ class Recorder:
 
     def write_dict(self, topic: str, schema_name: str, json_schema: Mapping, payload: Mapping, t_s: float) -> None:
         """Record a plain dict on ``topic`` under an explicitly given JSON schema (registered once per topic)."""
+        if self.write_error is not None and self.live_view is None:
+            self.dropped_after_error += 1
+            return
         channel_id = self._named_channels.get(topic)
         if channel_id is None or self._channel_schema[channel_id] != schema_name:
             channel_id = self._register_named(topic, schema_name, json_schema)
@@ -238,6 +284,9 @@ class Recorder:
         matrix, KNOWN (3) otherwise, UNKNOWN (0) for None. ``color_rgba`` (0..1) sets the track colour;
         ``heading_rad`` is clockwise from north. Non-finite lat/lon/alt raise ValueError.
         """
+        if self.write_error is not None and self.live_view is None:
+            self.dropped_after_error += 1
+            return
         if not (math.isfinite(lat_deg) and math.isfinite(lon_deg) and math.isfinite(alt_m)):
             raise ValueError(f"{topic}: non-finite position lat={lat_deg} lon={lon_deg} alt={alt_m}")
         t_ns = _time_ns(t_s)
@@ -278,10 +327,7 @@ class Recorder:
         bad = [(k, v) for k, v in data.items() if not isinstance(k, str) or not isinstance(v, str)]
         if bad:
             raise TypeError(f"metadata {name!r}: keys and values must be str, got {bad[:3]!r}")
-        try:
-            self._writer.add_metadata(name, dict(data))
-        except OSError as err:
-            self._failed(err)
+        self._io(self._writer.add_metadata, name, dict(data))
 
     def flush(self) -> None:
         """Close the chunk in progress now, so everything written so far is in the file.
@@ -292,10 +338,7 @@ class Recorder:
         """
         if self._closed or self._busy or self.write_error is not None:
             return
-        try:
-            self._close_chunk()
-        except OSError as err:
-            self._failed(err)
+        self._close_chunk()
 
     @property
     def counts(self) -> dict[str, int]:
@@ -305,6 +348,11 @@ class Recorder:
     @property
     def closed(self) -> bool:
         return self._closed
+
+    @property
+    def size_bytes(self) -> int:
+        """Bytes in the file so far plus those of the chunk in progress (uncompressed): what it will take at least."""
+        return (self._file.tell() if self._file is not None else 0) + self._chunk_bytes
 
     # ------------------------------------------------------------------ finishing
 
@@ -319,22 +367,15 @@ class Recorder:
         if self._busy:
             self._close_requested = True
             return
-        if self.write_error is not None:
-            self._closed = True
-            self._file.close()
-            return
         try:
-            self.add_metadata("clock", self.clock.metadata() if self.clock is not None else RecordClock().metadata())
+            if self.write_error is None:
+                self.add_metadata("clock", self.clock.metadata() if self.clock is not None else RecordClock().metadata())
+            if self.write_error is None and self._io(self._writer.finish) and self._fsync:
+                self._io(self._file.fsync)
         finally:
             self._closed = True
-        try:
-            self._writer.finish()
-            if self._fsync:
-                self._file.fsync()
-        except OSError as err:
-            self._failed(err)
-        finally:
-            self._file.close()
+            if self._file is not None:
+                self._file.close()
 
     def __enter__(self) -> Recorder:
         return self
@@ -348,17 +389,37 @@ class Recorder:
         if self._closed:
             raise RecordError(f"{self.path}: the recorder is closed")
 
+    def _io(self, op, *args) -> bool:
+        """Run one writer operation that writes to the file; on an OS error cut off what it half wrote (so the file
+        ends at a whole record and reads back to its end) and stop recording. False when it failed."""
+        if self.write_error is not None or self._file is None:
+            return False
+        mark = self._file.tell()
+        try:
+            op(*args)
+            return True
+        except OSError as err:
+            self._file.cut(mark)
+            self._failed(err)
+            return False
+
     def _failed(self, err: OSError) -> None:
         """A write failed: recording stops here (one message naming the file); nothing else is affected."""
-        if self.write_error is None:
-            self.write_error = err
-            why = err.strerror or err.__class__.__name__
+        if self.write_error is not None:
+            return
+        why = err.strerror or err.__class__.__name__
+        self.write_error = OSError(err.errno, why, str(self.path))
+        if self._raise:
+            raise self.write_error from err
+        if self._announce:
             print(f"companion: error: recording stopped, cannot write {self.path}: {why} "
                   f"(navigation and injection go on; {self.path} is not finalised)", file=sys.stderr, flush=True)
 
     def _add(self, channel_id: int, t_ns: int, data: bytes) -> None:
-        if self.write_error is not None:
+        if self.write_error is not None:  # the live view (Foxglove) goes on without the file
             self.dropped_after_error += 1
+            if self.live_view is not None and not self._closed:
+                self._publish(channel_id, self.clock.log_ns(t_ns) if self.clock is not None else t_ns, data)
             return
         if self._closed:
             raise RecordError(f"{self.path}: the recorder is closed")
@@ -370,27 +431,28 @@ class Recorder:
                 t_ns = self.clock.log_ns(t_ns)
             self._writer.add_message(channel_id, t_ns, data, t_ns, seq & 0xFFFFFFFF)
             if self.live_view is not None:
-                name = self._channel_schema[channel_id]
-                self.live_view.publish(self._channel_topic[channel_id], name, self._schemas[name][1], t_ns, data)
+                self._publish(channel_id, t_ns, data)
             self._chunk_bytes += _MESSAGE_OVERHEAD + len(data)
             t0 = self._chunk_t0
             if t0 is None:
                 self._chunk_t0 = t0 = t_ns
             if self._chunk_bytes >= self._chunk_size or abs(t_ns - t0) >= self._interval_ns:
                 self._close_chunk()
-        except OSError as err:
-            self._failed(err)
         finally:
             self._busy = False
         if self._close_requested:
             self.close()
 
+    def _publish(self, channel_id: int, t_ns: int, data: bytes) -> None:
+        name = self._channel_schema[channel_id]
+        self.live_view.publish(self._channel_topic[channel_id], name, self._schemas[name][1], t_ns, data)
+
     def _close_chunk(self) -> None:
-        self._writer.flush()  # finalises the chunk (if it has messages) and writes it and its indexes
+        # finalises the chunk (if it has messages) and writes it and its indexes
+        if self._io(self._writer.flush) and self._fsync:
+            self._io(self._file.fsync)
         self._chunk_bytes = 0
         self._chunk_t0 = None
-        if self._fsync:
-            self._file.fsync()
 
     def _register_schema(self, name: str, schema: Mapping) -> int:
         data = json.dumps(schema, separators=(",", ":"), sort_keys=False).encode()

@@ -10,12 +10,14 @@ the pings and systemd restarts the service).
 Latency: for every GPS_INPUT that leaves, the time from the arrival of the bytes whose decoding caused
 it (``Batch.recv_perf_s``) to the return of the socket write is kept per triggering message type.
 
-Freshness under load: the injector is told when the input it is working on arrived and never sends a state
-whose input arrived more than ``inject.max_lag_s`` ago. When the loop is behind the link (a batch waited
+Freshness under load: the injector is told when the input it is working on arrived (the kernel's receive time,
+see :mod:`companion.mavlink.transport`) and never sends a state whose input arrived more than ``inject.max_lag_s``
+(less :data:`DELIVERY_MARGIN_S`) ago. When the loop is behind the link (a batch waited
 more than :data:`SHED_AFTER_S`), everything queued is taken at once and its IMU samples are coalesced (the
 mean of each run between other events, held over the run's interval like one sample) so the loop catches
 up instead of falling further behind; it says so once per episode and counts what it shed (metadata
-``shed.*``, the summary). SIGTERM/SIGINT end the loop within a batch, whatever is still queued: the loop
+``shed.*``, the summary). The link's reader thins IMU frames itself when it is behind the kernel's queue
+(:mod:`companion.mavlink.shed`; ``link.imu_frames_shed``). SIGTERM/SIGINT end the loop within a batch, whatever is still queued: the loop
 yields to the event loop every :data:`YIELD_S` so the signal handler runs.
 """
 
@@ -44,6 +46,12 @@ _logger = logging.getLogger(__name__)
 _STOP = object()
 #: a batch that waited this long (perf_counter, since its bytes arrived) means the loop is behind: shed load
 SHED_AFTER_S = 0.1
+#: the injector's freshness check comes before the write, the autopilot's read after it: a state is held to
+#: ``inject.max_lag_s`` minus this since its input arrived (what a loaded machine adds: up to 70 ms measured between
+#: the check and the peer's read, 2 cores at load 8)
+DELIVERY_MARGIN_S = 0.1
+#: back on time this long: the episode is over (one pair of log lines per episode, not per late batch)
+CAUGHT_UP_AFTER_S = 1.0
 #: the loop hands control back to the event loop (signals, housekeeping) at least this often while busy
 YIELD_S = 0.02
 #: batches taken from the queue at once when behind
@@ -75,8 +83,12 @@ class Runtime:
         sender = self.link.send if config.inject.mode == "inject" else None
         self.injector = Injector(config.inject, sender=sender)
         self.injector.on_sent = self._on_sent
-        self.injector.arrival_clock = time.perf_counter  # freshness judged by when the input's bytes arrived
-        self.pipeline: Pipeline = build_pipeline(sink, nav_config=nav_config, extra_stages=[*stages, self.injector])
+        # freshness judged by when the input's bytes arrived, with a margin for the way out after the check
+        self.injector.arrival_clock = lambda: time.perf_counter() + DELIVERY_MARGIN_S
+        # what the pipeline records waits until the batch is done: the GPS_INPUT goes out before the disk work
+        self.deferred = DeferredSink(sink) if sink is not None else None
+        self.pipeline: Pipeline = build_pipeline(self.deferred, nav_config=nav_config,
+                                                 extra_stages=[*stages, self.injector])
         self.notifier = notifier if notifier is not None else Notifier()
         self.info = SourceInfo(kind="live", location=self.link.spec.url)
         self.latency_s: dict[str, array] = defaultdict(lambda: array("d"))
@@ -85,6 +97,8 @@ class Runtime:
         self.stopped_by: str | None = None
         self.shed: dict[str, int] = defaultdict(int)  # load shed when behind: imu_in, imu_out, batches, episodes
         self._behind = False
+        self._behind_at = 0.0  # perf_counter time the loop was last found behind
+        self._queue: asyncio.Queue | None = None
         self._stop_requested = False
         self._rx: tuple[float, str] | None = None
         self._last_batch_wall = time.monotonic()
@@ -108,14 +122,16 @@ class Runtime:
 
     def _on_status(self, st: LinkStatus) -> None:
         self.link_log.append(st)
-        if self.sink is not None:
-            self.sink.write(st)
+        if self.deferred is not None:
+            self.deferred.write(st)
+            self.deferred.drain()
         if self._log is not None:
             self._log(f"link {st.state}: {st.detail}")
         else:
-            level = logging.WARNING if st.state in ("lost", "open_failed", "rate_low") else logging.INFO
+            level = (logging.ERROR if st.state == "failed" else
+                     logging.WARNING if st.state in ("lost", "open_failed", "rate_low", "shedding") else logging.INFO)
             _logger.log(level, "link %s: %s", st.state, st.detail)
-        if st.state in ("autopilot", "lost", "reboot", "opened"):
+        if st.state in ("autopilot", "lost", "reboot", "opened", "failed"):
             self.notifier.status(f"link {st.state}: {st.detail}")
 
     # -- loop ---------------------------------------------------------------------------------
@@ -123,6 +139,7 @@ class Runtime:
         """Run until SIGTERM/SIGINT or ``duration_s``; returns what stopped it."""
         loop = asyncio.get_running_loop()
         queue: asyncio.Queue = asyncio.Queue()
+        self._queue = queue
         reasons: list[str] = []
         # the link thread and the loop share the GIL: hand it over within 1 ms, not CPython's default 5 ms
         sys.setswitchinterval(0.001)
@@ -148,25 +165,30 @@ class Runtime:
                     break
                 if isinstance(item, Batch):
                     if time.perf_counter() - item.recv_perf_s > SHED_AFTER_S:
-                        item, later = self._catch_up(item, queue)
+                        work, later = self._catch_up(item, queue)
                         for st in later:
                             if st is _STOP:
                                 self._stop_requested = True
                             else:
                                 self._on_status(st)
-                    elif self._behind:
-                        self._behind = False
-                        self._say(logging.INFO, f"caught up with the link; shed so far: {self._shed_text()}")
-                    self._rx = (item.recv_perf_s, item.trigger)
-                    self.injector.arrival_s = item.recv_perf_s
-                    for ev in item.events:
+                    else:
+                        work = [(ev, item.recv_perf_s, item.trigger) for ev in item.events]
+                        if self._behind and time.perf_counter() - self._behind_at > CAUGHT_UP_AFTER_S:
+                            self._behind = False
+                            self._say(logging.INFO, f"caught up with the link; shed so far: {self._shed_text()}")
+                    for ev, arrival_s, trigger in work:
+                        # each event is judged by when its own bytes arrived, merged or not
+                        self._rx = (arrival_s, trigger)
+                        self.injector.arrival_s = arrival_s
                         self.pipeline.process(ev)
                         if time.perf_counter() - last_yield > YIELD_S:
+                            self._drain()
                             await asyncio.sleep(0)  # let a signal handler run
                             last_yield = time.perf_counter()
                             if self._stop_requested:
                                 break
                     self._rx = None  # (the injector keeps the arrival: what finish() flushes was built from it)
+                    self._drain()
                     self.batches += 1
                     self._last_batch_wall = time.monotonic()
                 elif isinstance(item, LinkStatus):
@@ -186,22 +208,24 @@ class Runtime:
                     self._on_status(item)
                 elif isinstance(item, Batch):
                     self.shed["batches_left_at_stop"] += 1
+            self._drain()
             self.pipeline.finish()
+            self._drain()
             self.notifier.close()
         self.stopped_by = reasons[0] if reasons else None
         return self.stopped_by
 
-    def _catch_up(self, first: Batch, queue: asyncio.Queue) -> tuple[Batch, list]:
-        """Behind the link: every queued batch at once, IMU samples coalesced; returns the merged batch (its
-        arrival time: the newest input's) and the link statuses (and a stop) that were queued between them."""
+    def _catch_up(self, first: Batch, queue: asyncio.Queue) -> tuple[list[tuple[Event, float, str]], list]:
+        """Behind the link: every queued batch at once, IMU samples coalesced; returns the events with their
+        arrival times and triggers, and the link statuses (and a stop) that were queued between them."""
+        self._behind_at = time.perf_counter()
         batches, other = [first], []
         while not queue.empty() and len(batches) < MAX_DRAIN:
             nxt = queue.get_nowait()
             (batches if isinstance(nxt, Batch) else other).append(nxt)
-        events = [ev for b in batches for ev in b.events]
-        merged = coalesce_imu(events)
-        n_imu_in = sum(isinstance(e, ImuSample) for e in events)
-        n_imu_out = sum(isinstance(e, ImuSample) for e in merged)
+        work = coalesce_imu_timed([(ev, b.recv_perf_s, b.trigger) for b in batches for ev in b.events])
+        n_imu_in = sum(isinstance(e, ImuSample) for b in batches for e in b.events)
+        n_imu_out = sum(isinstance(w[0], ImuSample) for w in work)
         self.shed["batches_merged"] += len(batches) - 1
         self.shed["imu_samples_in"] += n_imu_in
         self.shed["imu_samples_coalesced"] += n_imu_in - n_imu_out
@@ -210,8 +234,11 @@ class Runtime:
             self.shed["episodes"] += 1
             lag = time.perf_counter() - first.recv_perf_s
             self._say(logging.WARNING, f"{lag:.2f} s behind the link: coalescing IMU samples to catch up")
-        last = batches[-1]
-        return Batch(last.recv_perf_s, merged, last.trigger), other
+        return work, other
+
+    def _drain(self) -> None:
+        if self.deferred is not None:
+            self.deferred.drain()
 
     def _shed_text(self) -> str:
         s = self.shed
@@ -231,6 +258,10 @@ class Runtime:
                 next_ping = now + period
             if now - self._last_batch_wall > 1.0 and hasattr(self.sink, "flush"):
                 self.sink.flush()  # nothing arriving: put what we have on disk
+            if (self._behind and self._queue is not None and self._queue.empty()
+                    and time.perf_counter() - self._behind_at > CAUGHT_UP_AFTER_S):
+                self._behind = False  # the backlog is worked off and nothing new came (a quiet or lost link)
+                self._say(logging.INFO, f"caught up with the link (nothing queued); shed so far: {self._shed_text()}")
 
     # -- reporting ----------------------------------------------------------------------------
     def finalize_info(self) -> None:
@@ -273,13 +304,41 @@ class Runtime:
         return lines
 
 
+class DeferredSink:
+    """The pipeline's sink, written once the batch is processed (:meth:`drain`), in the order it was given."""
+
+    def __init__(self, sink: Any) -> None:
+        self.sink = sink
+        self._pending: list[tuple[Any, tuple, dict]] = []
+
+    def write(self, *args, **kw) -> None:
+        self._pending.append((self.sink.write, args, kw))
+
+    def write_location(self, *args, **kw) -> None:
+        self._pending.append((self.sink.write_location, args, kw))
+
+    def drain(self) -> None:
+        pending, self._pending = self._pending, []
+        for fn, args, kw in pending:
+            fn(*args, **kw)
+
+    def __getattr__(self, name: str) -> Any:  # anything else (flush, paths, ...) is the sink's own, after a drain
+        self.drain()
+        return getattr(self.sink, name)
+
+
 def coalesce_imu(events: list[Event]) -> list[Event]:
     """Each run of IMU samples (per IMU) between other events -> one sample: the mean, at the run's last time.
 
     The navigator holds a sample over the interval since the previous one, so the mean held over the whole run
     integrates the same velocity and angle change to first order; other events keep their order and place."""
-    out: list[Event] = []
-    runs: dict[int, list[ImuSample]] = {}
+    return [w[0] for w in coalesce_imu_timed([(ev, 0.0, "") for ev in events])]
+
+
+def coalesce_imu_timed(work: list[tuple[Event, float, str]]) -> list[tuple[Event, float, str]]:
+    """:func:`coalesce_imu` on (event, arrival, trigger): a coalesced sample keeps its last member's arrival."""
+    out: list[tuple[Event, float, str]] = []
+    runs: dict[int, list[tuple[ImuSample, float, str]]] = {}
 
     def flush() -> None:
         for run in runs.values():
@@ -287,16 +346,18 @@ def coalesce_imu(events: list[Event]) -> list[Event]:
                 out.append(run[0])
                 continue
             n = float(len(run))
-            acc = tuple(sum(s.accel_frd_mps2[i] for s in run) / n for i in range(3))
-            gyr = tuple(sum(s.gyro_frd_radps[i] for s in run) / n for i in range(3))
-            out.append(replace(run[-1], accel_frd_mps2=acc, gyro_frd_radps=gyr))
+            acc = tuple(sum(s.accel_frd_mps2[i] for s, _, _ in run) / n for i in range(3))
+            gyr = tuple(sum(s.gyro_frd_radps[i] for s, _, _ in run) / n for i in range(3))
+            last, arrival_s, trigger = run[-1]
+            out.append((replace(last, accel_frd_mps2=acc, gyro_frd_radps=gyr), arrival_s, trigger))
         runs.clear()
 
-    for ev in events:
+    for w in work:
+        ev = w[0]
         if isinstance(ev, ImuSample):
-            runs.setdefault(ev.imu_index, []).append(ev)
+            runs.setdefault(ev.imu_index, []).append(w)
         else:
             flush()
-            out.append(ev)
+            out.append(w)
     flush()
     return out

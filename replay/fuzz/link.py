@@ -4,13 +4,13 @@
 messages ``companion sim`` sends, encoded by ``companion.sim.mavlink_out`` with pymavlink's ardupilotmega
 dialect) in real time as the autopilot (system 1, component 1), over TCP (it listens, the companion connects
 with ``tcp:``, like SITL) or UDP (the companion binds ``udpin:``, the peer sends to it). On the play clock it
-applies :class:`Fault` s: garbage bytes, frames with a bad CRC, MAVLink 1 frames among MAVLink 2, extreme and
+applies faults (:mod:`replay.fuzz.faults`): garbage bytes, frames with a bad CRC, MAVLink 1 frames among MAVLink 2, extreme and
 NaN fields, a message stamped far ahead or behind, a burst of thousands of messages a second, a SIGTERM.
 
 It reads back what the companion sends: HEARTBEATs (the link is alive) and, in inject mode, every GPS_INPUT,
 with its arrival time, the horizontal error against the flight's truth and its *lag*: arrival minus the send
-time of the first stream message that could have produced it (boot time >= the state's time + the navigator's
-reorder window). The properties (:func:`judge_live`): the process stays up until the SIGTERM and keeps
+time of the stream message it was built on (GPS_INPUT is stamped ``autopilot_lag_s`` before the newest input
+the companion had: the first message with boot time >= its time + that lag). The properties (:func:`judge_live`): the process stays up until the SIGTERM and keeps
 consuming (fresh GPS_INPUT in the quiet seconds after the last fault), exits within 2 s of SIGTERM with exit 0,
 no traceback, no GPS_INPUT more than ``max_lag_s`` late, no 3D fix whose error exceeds 4 x its stated
 accuracy, a readable MCAP.
@@ -22,7 +22,6 @@ GPS_INPUT), each with a generous limit; never a fixed sleep.
 from __future__ import annotations
 
 import bisect
-import copy
 import math
 import os
 import select
@@ -30,6 +29,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from replay.fuzz.faults import BadCrc, Burst, Fault, Garbage, Inject, Mavlink1, Sigterm  # noqa: F401 (re-exported)
 from replay.fuzz.properties import TRACEBACK_MARKS, check_mcap
 
 CLI = [sys.executable, "-m", "companion.cli"]
@@ -83,140 +84,6 @@ def sample_playback():
 
 
 _PLAYBACK = None
-
-
-# ----------------------------------------------------------------------------------------------- faults
-@dataclass
-class Fault:
-    """Something the peer does on the play clock, ``at_s`` after the first fresh GPS_INPUT, for ``duration_s``."""
-
-    at_s: float
-    duration_s: float = 0.0
-    started: bool = field(default=False, init=False)
-    done: bool = field(default=False, init=False)
-    t0: float = field(default=0.0, init=False)  # play time it started
-
-    @property
-    def name(self) -> str:
-        return type(self).__name__
-
-    def begin(self, peer: Peer, now: float) -> None:  # once, when at_s is reached
-        pass
-
-    def step(self, peer: Peer, now: float) -> None:  # every loop iteration while active
-        pass
-
-    def transform(self, peer: Peer, frame: bytes, msg) -> bytes:  # a stream frame while active
-        return frame
-
-
-class Garbage(Fault):
-    """Random bytes between frames, ``bytes_per_s`` of them."""
-
-    def __init__(self, at_s, duration_s=5.0, bytes_per_s=20_000):
-        super().__init__(at_s, duration_s)
-        self.rate = bytes_per_s
-        self._sent = 0
-
-    def step(self, peer, now):
-        due = int(self.rate * (now - self.t0)) - self._sent
-        if due >= 64:
-            peer.write(peer.rng.bytes(due))
-            self._sent += due
-
-
-class BadCrc(Fault):
-    """Every ``every``-th stream frame with its CRC broken (dropped as a bad frame, never decoded)."""
-
-    def __init__(self, at_s, duration_s=5.0, every=3):
-        super().__init__(at_s, duration_s)
-        self.every, self._n = every, 0
-
-    def transform(self, peer, frame, msg):
-        self._n += 1
-        if self._n % self.every:
-            return frame
-        b = bytearray(frame)
-        b[-1] ^= 0x5A
-        return bytes(b)
-
-
-class Mavlink1(Fault):
-    """Every other stream frame sent as MAVLink 1 (pymavlink's own v1 encoding)."""
-
-    def __init__(self, at_s, duration_s=5.0):
-        super().__init__(at_s, duration_s)
-        self._n = 0
-
-    def transform(self, peer, frame, msg):
-        self._n += 1
-        if self._n % 2 or msg.get_msgId() > 255:
-            return frame
-        return peer.pack(msg, force_mavlink1=True)
-
-
-class Inject(Fault):
-    """Extra messages built from the newest stream message of a type: ``edits`` {type: [(field, value), ...]}
-    -- each (field, value) one message -- sent ``repeat_hz`` times a second for ``duration_s`` (0: once).
-    A value "+30s"/"-10s" moves the message's own boot time."""
-
-    def __init__(self, at_s, edits: dict[str, list[tuple[str, object]]], duration_s=0.0, repeat_hz=5.0):
-        super().__init__(at_s, duration_s)
-        self.edits, self.repeat_hz, self._next = edits, repeat_hz, 0.0
-        self.sent = 0
-
-    def begin(self, peer, now):
-        self._next = now
-
-    def step(self, peer, now):
-        if now < self._next:
-            return
-        for mtype, changes in self.edits.items():
-            for fname, value in changes:
-                msg = peer.newest(mtype)
-                if msg is None:
-                    continue
-                msg = copy.copy(msg)
-                if isinstance(value, str) and value.endswith("s"):
-                    shift = float(value[:-1])
-                    tf = "time_boot_ms" if hasattr(msg, "time_boot_ms") else "time_usec"
-                    scale = 1e3 if tf == "time_boot_ms" else 1e6
-                    setattr(msg, tf, max(0, int(getattr(msg, tf) + shift * scale)))
-                else:
-                    setattr(msg, fname, value)
-                peer.write(peer.pack(msg))
-                self.sent += 1
-        self._next = now + 1.0 / self.repeat_hz if self.duration_s > 0 else math.inf
-
-
-class Burst(Fault):
-    """RAW_IMU at ``rate`` messages a second on top of the stream, boot time advancing with the play clock."""
-
-    def __init__(self, at_s, duration_s=3.0, rate=14_000, chunk=40):
-        super().__init__(at_s, duration_s)
-        self.rate, self.chunk, self.sent = rate, chunk, 0
-
-    def step(self, peer, now):
-        due = int(self.rate * (now - self.t0)) - self.sent
-        if due < self.chunk:
-            return
-        tmpl = peer.newest("RAW_IMU")
-        if tmpl is None:
-            return
-        msg = copy.copy(tmpl)
-        frames = []
-        for k in range(due):
-            msg.time_usec = int((now - (due - k) / self.rate) * 1e6)
-            frames.append(peer.pack(msg))
-        peer.write(b"".join(frames))
-        self.sent += due
-
-
-class Sigterm(Fault):
-    """SIGTERM to the companion."""
-
-    def begin(self, peer, now):
-        peer.sigterm()
 
 
 # ----------------------------------------------------------------------------------------------- peer
@@ -268,12 +135,21 @@ class Peer:
         self.wall0: float | None = None
         self.sigterm_mono: float | None = None
         self._k = 0
+        # what the companion sends is read (and timed) by a thread of its own: the play loop can be busy packing
+        # a burst for a long time on a loaded machine, and a GPS_INPUT must not look late for the peer's delay
+        self._lock = threading.Lock()
+        self._reader: threading.Thread | None = None
+        self._closing = threading.Event()
 
     # -- I/O ----------------------------------------------------------------------------------
-    def pack(self, msg, src=(1, 1), force_mavlink1=False) -> bytes:
+    def packer(self, src=(1, 1)):
         mav = self._packers.get(src)
         if mav is None:
             mav = self._packers[src] = mavlink2.MAVLink(None, srcSystem=src[0], srcComponent=src[1])
+        return mav
+
+    def pack(self, msg, src=(1, 1), force_mavlink1=False) -> bytes:
+        mav = self.packer(src)
         frame = bytes(msg.pack(mav, force_mavlink1=force_mavlink1))
         mav.seq = (mav.seq + 1) % 256
         return frame
@@ -313,6 +189,7 @@ class Peer:
                 if r:
                     self.sock, _ = self._listen.accept()
                     self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                    self._start_reader()
         else:
             while not udp_port_bound(self.port):
                 if time.monotonic() > end or (self.companion and self.companion.proc.poll() is not None):
@@ -320,9 +197,22 @@ class Peer:
                 time.sleep(0.05)
             self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             self.sock.bind(("127.0.0.1", 0))
+            self._start_reader()
         self.wall0 = time.monotonic()
 
+    def _start_reader(self) -> None:
+        def run():
+            while not self._closing.is_set() and self.sock is not None:
+                self._read(0.05)
+
+        self._reader = threading.Thread(target=run, name="peer-reader", daemon=True)
+        self._reader.start()
+
     def close(self) -> None:
+        self._closing.set()
+        if self._reader is not None:
+            self._reader.join(5)
+            self._reader = None
         for s in (self.sock, self._listen):
             if s is not None:
                 s.close()
@@ -330,20 +220,21 @@ class Peer:
 
     # -- receiving ----------------------------------------------------------------------------
     def _read(self, timeout_s: float) -> None:
-        if self.sock is None:
-            return
-        r, _, _ = select.select([self.sock], [], [], max(0.0, timeout_s))
-        if not r:
+        sock = self.sock
+        if sock is None:
             return
         try:
-            data = self.sock.recv(65536) if self.transport == "tcp" else self.sock.recvfrom(65536)[0]
-        except OSError:
-            return
-        if not data:
-            self.sock.close()
-            self.sock = None
+            r, _, _ = select.select([sock], [], [], max(0.0, timeout_s))
+            if not r:
+                return
+            data = sock.recv(65536) if self.transport == "tcp" else sock.recvfrom(65536)[0]
+        except (OSError, ValueError):  # closed under us
             return
         now = time.monotonic()
+        if not data:
+            sock.close()
+            self.sock = None
+            return
         for m in self._rx.parse_buffer(data) or []:
             t = m.get_type()
             self.received[t] = self.received.get(t, 0) + 1
@@ -365,9 +256,10 @@ class Peer:
             err = float(math.hypot(ned[0], ned[1]))
         lag = None
         # the input it was built on: the first sent at or after the state's epoch + the autopilot's lag
-        i = bisect.bisect_left(self._sent_boot, boot + self.epoch_lag_s - 1e-6)
-        if i < len(self._sent_boot):
-            lag = now - self._sent_mono[i]
+        with self._lock:
+            i = bisect.bisect_left(self._sent_boot, boot + self.epoch_lag_s - 1e-6)
+            if i < len(self._sent_boot):
+                lag = now - self._sent_mono[i]
         self.gps_inputs.append(GpsInputSeen(now, boot, d["fix_type"], d["h_acc_m"], err, lag))
 
     # -- playing ------------------------------------------------------------------------------
@@ -403,13 +295,14 @@ class Peer:
                 out.append(frame)
                 self._newest[it.msg.get_type()] = it.msg
                 if it.boot_s is not None:
-                    self._sent_boot.append(it.boot_s)
-                    self._sent_mono.append(time.monotonic())
+                    with self._lock:
+                        self._sent_boot.append(it.boot_s)
+                        self._sent_mono.append(time.monotonic())
             if out:
                 self.write(b"".join(out))
             nxt = self.items[self._k].play_s if self._k < len(self.items) else now + 0.01
             busy = any(isinstance(f, (Burst, Garbage)) for f in active)
-            self._read(0.0005 if busy else min(0.005, max(0.0, nxt - self.play_now())))
+            time.sleep(0.0005 if busy else min(0.005, max(0.0, nxt - self.play_now())))
 
     def fresh_since(self, t_mono: float) -> list[GpsInputSeen]:
         return [g for g in self.gps_inputs if g.recv_mono >= t_mono and g.lag_s is not None and g.lag_s <= MAX_LAG_S]

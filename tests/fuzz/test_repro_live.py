@@ -39,17 +39,12 @@ def _summary(res) -> str:
             f"max lag {res.max_lag_s:.2f} s, traceback {res.traceback!r}, MCAP {res.mcap or 'ok'}; {res.notes}")
 
 
-@pytest.mark.xfail(**XFAIL, reason="one RAW_IMU 1e5 s ahead: a false reboot moves the vehicle clock 1e5 s ahead, "
-                   "the navigator ticks through it in the loop (Navigator._run_ticks): GPS_INPUT stops, SIGTERM is "
-                   "never handled, the record is not finalised")
 def test_live_forward_time_jump_keeps_consuming(tmp_path):
     res, _, _ = _run("imu_forward_1e5s", [Inject(1.0, {"RAW_IMU": [("time_usec", "+100000s")]})], tmp_path)
     assert res.died_s is None and res.fresh_after_faults > 0, _summary(res)
     assert res.exit_code == 0 and res.sigterm_to_exit_s <= 2.0 and not res.mcap, _summary(res)
 
 
-@pytest.mark.xfail(**XFAIL, reason="one ATTITUDE 30 s ahead: VehicleClock takes it as the new time, the stream "
-                   "then looks 30 s behind and is confirmed as an autopilot reboot; GPS_INPUT goes out seconds late")
 def test_live_future_stamped_attitude_is_not_a_reboot(tmp_path):
     res, _, comp = _run("future_attitude_30s", [Inject(1.0, {"ATTITUDE": [("time_boot_ms", "+30s")]})], tmp_path)
     from companion.record import summarize
@@ -60,8 +55,6 @@ def test_live_future_stamped_attitude_is_not_a_reboot(tmp_path):
     assert res.stale == 0, _summary(res)
 
 
-@pytest.mark.xfail(**XFAIL, reason="SIGTERM during a burst backlog over TCP: the stop marker is queued behind "
-                   "every batch already waiting (Runtime.run: stop() -> queue.put_nowait(_STOP)), exit takes ~10 s")
 def test_sigterm_honoured_within_2s_under_backlog_tcp(tmp_path):
     burst = Burst(1.0, 6.0, rate=BURST_HZ)
     res, _, _ = _run("sigterm_in_burst", [burst, Sigterm(3.5)], tmp_path, "tcp")
@@ -70,10 +63,6 @@ def test_sigterm_honoured_within_2s_under_backlog_tcp(tmp_path):
     assert not res.mcap, _summary(res)
 
 
-@pytest.mark.xfail(**XFAIL, reason="SIGTERM during a burst backlog over UDP: queued behind the backlog (~10 s), or lost "
-                   "outright when one call_soon_threadsafe per datagram has filled asyncio's self-pipe and the "
-                   "signal's wake-up byte cannot be written ('Exception ignored when trying to write to the signal "
-                   "wakeup fd'): then the process never exits")
 def test_sigterm_honoured_within_2s_under_backlog_udp(tmp_path):
     burst = Burst(1.0, 6.0, rate=BURST_HZ)
     res, _, _ = _run("sigterm_in_burst", [burst, Sigterm(3.5)], tmp_path, "udp")
@@ -82,9 +71,6 @@ def test_sigterm_honoured_within_2s_under_backlog_udp(tmp_path):
     assert not res.traceback and not res.mcap, _summary(res)
 
 
-@pytest.mark.xfail(**XFAIL, reason="after a 3 s burst the loop is seconds behind the link and still sends 3D fixes: "
-                   "the staleness check compares sensor time with sensor time (Injector._on_state), never with "
-                   "when the input's bytes arrived")
 def test_no_stale_gps_input_under_burst(tmp_path):
     burst = Burst(1.0, 3.0, rate=BURST_HZ)
     res, peer, _ = _run("burst", [burst], tmp_path)
@@ -95,8 +81,6 @@ def test_no_stale_gps_input_under_burst(tmp_path):
     assert res.fresh_after_faults > 0, _summary(res)
 
 
-@pytest.mark.xfail(**XFAIL, reason="SYSTEM_TIME with time_unix_usec 4e16 in inject mode: GPS week 66,000 does not "
-                   "fit GPS_INPUT.time_week (uint16): struct.error from pack() in the loop, the process dies")
 def test_system_time_4e16_in_inject_mode(tmp_path):
     res, _, _ = _run("system_time_4e16", [Inject(1.0, {"SYSTEM_TIME": [("time_unix_usec", 40_000_000_000_000_000)]})],
                      tmp_path)
@@ -139,8 +123,6 @@ def _disk_full(path: Path) -> bool:
     return st.f_bavail == 0
 
 
-@pytest.mark.xfail(**XFAIL, reason="a full disk stops the vehicle's navigation: the record's write error (ENOSPC) "
-                   "propagates out of the loop and `run` exits 2 -- GPS_INPUT stops")
 def test_full_disk_keeps_navigating_and_injecting(tmp_path, tiny_disk):
     peer = Peer("tcp")
     out = tiny_disk / "live.mcap"
@@ -168,9 +150,6 @@ def test_full_disk_keeps_navigating_and_injecting(tmp_path, tiny_disk):
 
 
 # ----------------------------------------------------------------------------------------------- serial
-@pytest.mark.xfail(**XFAIL, reason="a serial device missing at start ends the service with exit 2 (parse_url "
-                   "checks the device exists, load_config turns it into a ConfigError) instead of a link that is "
-                   "retried until the device appears")
 def test_serial_device_missing_at_start_is_retried(tmp_path):
     dev = Path(f"/dev/ttyCOMPFUZZ{os.getpid()}")
     if dev.exists() or dev.is_symlink():

@@ -11,13 +11,9 @@ import hashlib
 import os
 import time
 
-import pytest
-
 from replay.fuzz.mutate import TWO64_NS_AS_US, _put_fmt
 from replay.fuzz.properties import check_mcap
 from tests.fuzz.conftest import one_line_error, replay_bytes, run_cli
-
-XFAIL = dict(strict=True, raises=AssertionError)
 
 
 def _sha(path) -> str:
@@ -204,8 +200,6 @@ def test_replay_out_same_as_input_tlog_refused(clean, tmp_path):
     assert one_line_error(res), res.stderr[-300:]
 
 
-@pytest.mark.xfail(**XFAIL, reason="a disk error names no path: 'companion: error: : No space left on device' "
-                   "(cli.main prints OSError.filename, None for os.write)")
 def test_disk_error_names_the_path(clean, tmp_path):
     log = tmp_path / "a.bin"
     log.write_bytes(clean["ac33dev-inflight-gps-loss@0%"].data)
@@ -214,8 +208,6 @@ def test_disk_error_names_the_path(clean, tmp_path):
     assert "/dev/full" in res.stderr and "No space left" in res.stderr, res.stderr
 
 
-@pytest.mark.xfail(**XFAIL, reason="`companion inspect` calls a file whose chunk CRC fails 'finalised': "
-                   "summarize trusts the summary section and never reads the chunks")
 def test_inspect_reports_chunk_crc_failure(clean, tmp_path):
     from mcap.reader import make_reader
 

@@ -158,6 +158,25 @@ def test_rate_limit_and_minimum_rate():
         InjectConfig(mode="inject", rate_hz=2.0)
 
 
+def test_rate_limit_keeps_the_rate_when_the_epochs_jitter():
+    """10 Hz states, each final once the first 50 Hz IMU sample past its reorder window arrives (0-20 ms past it):
+    all go out at rate_hz 10 (a strict 0.1 s gap sent about 8 a second), and never two within 0.75 / rate_hz."""
+    import numpy as np
+
+    from companion.events import ImuSample
+
+    inj = Injector(InjectConfig(mode="shadow", rate_hz=10.0))
+    jitter = np.random.default_rng(3).uniform(0.0, 0.02, 100)
+    recs = []
+    for k in range(100):
+        t = 10 + 0.1 * k
+        inj.process(ImuSample(t + 0.25 + jitter[k], (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), 0))
+        recs += [o for o in inj.process(state(t_s=t)) if isinstance(o, GpsInputRecord)]
+    assert len(recs) >= 98
+    gaps = [b.t_s - a.t_s for a, b in zip(recs, recs[1:])]
+    assert min(gaps) >= 0.75 / 10.0 - 1e-9
+
+
 def test_off_mode_builds_nothing():
     inj = Injector(InjectConfig(mode="off"))
     assert inj.process(state()) == [] and inj.built == 0
@@ -348,3 +367,99 @@ def test_backup_claims_a_fix_in_an_outage_only_with_an_aid_the_autopilot_lacks()
     inj.process(fix(72.1))  # the receiver is back: the state follows it again with its fix
     (rec,) = tick(inj, state(t_s=72.2, sigma_h=1.0, measurement="gnss"))
     assert rec.fix_type == FixType.FIX_3D
+
+
+def test_every_state_is_checked_against_the_nearest_receiver_fix_newer_or_older():
+    """States leave the navigator behind the newest input, so the nearest receiver fix is often newer than the state:
+    it is carried to the state's epoch at its own velocity and still judged."""
+    m_deg = 1.0 / 111_000
+    inj = Injector(InjectConfig(mode="shadow"))
+    # vehicle and receiver go north at 20 m/s; the receiver's fix 0.2 s after the state's epoch is 4 m further on
+    inj.process(replace(fix(10.3), lat_deg=-35.3632 + 6.0 * m_deg, h_acc_m=1.0, vel_n_mps=20.0, vel_e_mps=0.0))
+    st = dict(sigma_h=0.3, vel_n_mps=20.0, vel_e_mps=0.0)
+    # gate: 13.8 x (0.3^2 + 1^2) + (20 m/s x 0.2 s)^2 -> 5.6 m; the 4 m would pass anyway, 6 m would not: the carry
+    # makes the difference only if the comparison happens at the state's epoch (10.1 s once tick carries it)
+    (ok,) = tick(inj, state(t_s=10.0, **st))
+    assert isinstance(ok, GpsInputRecord) and ok.t_s == pytest.approx(10.1)
+    (bad,) = tick(inj, state(t_s=10.2, lat=-35.3632 + (4.0 - 7.0) * m_deg, **st))  # 7 m behind: refused
+    assert isinstance(bad, InjectorDrop) and bad.reason == "inconsistent with the receiver"
+    meta = inj.metadata()
+    assert (meta["cross_check.states"], meta["cross_check.checked"], meta["cross_check.fraction"]) == ("2", "2", "1.0000")
+    # no fix within consistency_window_s on either side: not checked (held after the disagreement), and counted
+    (held,) = tick(inj, state(t_s=11.0, lat=-35.3632 + 20.0 * m_deg, **st))
+    assert isinstance(held, InjectorDrop) and "not yet re-checked" in held.reason
+    assert inj.metadata()["cross_check.fraction"] == f"{2 / 3:.4f}"
+    assert any("cross-check on 2 of 3 states" in line for line in inj.summary_lines())
+
+
+def test_a_fix_far_from_the_state_for_seconds_stops_every_message():
+    """Do no harm: a receiver 300 m away (newer than every state) refuses each state, not one in a hundred."""
+    inj = Injector(InjectConfig(mode="shadow"))
+    refused = 0
+    for k in range(50):
+        t = 10.0 + 0.1 * k
+        inj.process(replace(fix(t + 0.15), lat_deg=-35.3632 + 300.0 / 111_000, h_acc_m=1.0))
+        out = tick(inj, state(t_s=t, vel_n_mps=0.0, vel_e_mps=0.0))
+        refused += isinstance(out[0], InjectorDrop) and out[0].reason == "inconsistent with the receiver"
+    assert refused == 50 and inj.built == 0
+
+
+def test_gps_time_out_of_the_uint16_week_is_never_sent():
+    """A receiver GPS time outside the week's range is not used; a derived week beyond uint16 goes out as unknown."""
+    inj = Injector(InjectConfig(mode="shadow"))
+    inj.process(replace(fix(9.9), gps_week=70_000, gps_tow_s=1.0))
+    inj.process(replace(fix(9.95), gps_week=2357, gps_tow_s=-5.0))
+    assert inj.dropped["receiver GPS time out of range (not used)"] == 2
+    (rec,) = tick(inj, state(t_s=10.0))
+    assert (rec.time_week, rec.time_week_ms) == (0, 0)
+    inj.process(replace(fix(10.1), gps_week=65535, gps_tow_s=604_799.0))  # the last second of the last week
+    (rec,) = tick(inj, state(t_s=10.2))
+    assert rec.time_week == 65535
+    (rec,) = tick(inj, state(t_s=11.5))  # carried past it: week 65536 does not exist on the wire
+    assert (rec.time_week, rec.time_week_ms) == (0, 0)
+    assert inj.dropped["GPS week beyond uint16: time sent as unknown (0/0)"] == 1
+
+
+def test_a_record_that_cannot_be_encoded_is_not_built_in_shadow_mode_either():
+    inj = Injector(InjectConfig(mode="shadow"))
+    (bad,) = tick(inj, state(t_s=10.0, sigma_h=1e39))  # finite, but beyond float32
+    assert isinstance(bad, InjectorDrop) and bad.reason.startswith("not encodable (hdop") and inj.built == 0
+
+
+EXTREME = [math.nan, math.inf, -math.inf, 1e300, -1e300, 1e39, -1e39, 4e16, -4e16, 2.0**64, -(2.0**63), 0.0, -0.0,
+           1e-300, 65536.0, 604800.0, -1.0]
+
+
+def test_any_field_at_any_value_is_dropped_or_clamped_never_raised():
+    """Seeded: states, receiver fixes and clocks with extreme values in one field each, in inject mode. Nothing
+    raises, and every message that left fits GPS_INPUT's wire types (it parsed back) with its stated week in uint16."""
+    import random
+
+    from companion.events import ImuSample
+
+    rng = random.Random(7)
+    wire = Wire()
+    inj = Injector(InjectConfig(mode="inject"), sender=lambda m: wire(m))
+    s_fields = ["t_s", "lat_deg", "lon_deg", "alt_msl_m", "vel_n_mps", "vel_e_mps", "vel_d_mps", "sigma_h_m",
+                "sigma_v_m", "yaw_rad"]
+    # a receiver fix's time is only made non-finite: the vehicle clock upstream refuses finite time outliers
+    f_fields = ["lat_deg", "lon_deg", "hdop", "h_acc_m", "v_acc_m", "vel_n_mps", "gps_tow_s"]
+    t = 10.0
+    for k in range(3000):
+        t += 0.1
+        kind = rng.random()
+        bad = rng.choice(EXTREME)
+        if kind < 0.1:
+            inj.process(SystemTime(t_s=t, unix_time_s=rng.choice([bad, 1.7e9])))
+        elif kind < 0.4:
+            f = replace(fix(t), gps_week=rng.choice([2357, 0, 65535, 70_000, -1]), gps_tow_s=1.0, h_acc_m=1.0)
+            inj.process(replace(f, **{rng.choice(f_fields): bad}) if rng.random() < 0.5 else f)
+            if rng.random() < 0.05:
+                inj.process(replace(f, t_s=rng.choice([math.nan, math.inf, -math.inf])))
+        else:
+            st = state(t_s=t, vel_n_mps=0.0, vel_e_mps=0.0, vel_d_mps=0.0)
+            inj.process(ImuSample(t_s=t + 0.2, accel_frd_mps2=(0.0, 0.0, -9.8), gyro_frd_radps=(0.0,) * 3, imu_index=0))
+            inj.process(replace(st, **{rng.choice(s_fields): bad}) if rng.random() < 0.5 else st)
+    assert inj.sent == len(wire.msgs) > 100, inj.dropped
+    assert all(0 <= m.time_week <= 65535 and m.time_usec >= 0 for m in wire.msgs)
+    assert sum(inj.dropped.values()) > 100

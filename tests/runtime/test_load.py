@@ -80,6 +80,8 @@ def test_behind_the_link_sheds_imu_and_never_sends_a_stale_state(sample_events):
     assert all(a <= max_lag for a in ages)
     assert rt.shed["imu_samples_coalesced"] > 0 and rt.shed["episodes"] >= 1
     assert any("behind the link" in line for line in logs)
+    # the backlog worked off and nothing new queued: the episode ends, and says so, without a next batch
+    assert any("caught up with the link" in line for line in logs), logs
     meta = rt.metadata()
     assert int(meta["shed.imu_samples_coalesced"]) > 0
     assert any(line.startswith("load shed") for line in rt.summary_lines())

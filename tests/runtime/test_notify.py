@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 import socket
 
+import pytest
+
 from companion.notify import Notifier
 from tests.conftest import REPO, free_port
 
@@ -129,3 +131,74 @@ def test_unit_file_verifies_and_is_hardened(tmp_path):
     res = subprocess.run(["systemd-analyze", "verify", str(local)], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stderr
     assert "companion.service" not in res.stderr, res.stderr  # no warnings about our unit
+
+
+@pytest.mark.parametrize("fault", ["dies", "hangs"])
+def test_watchdog_stops_when_the_link_reader_dies_or_hangs(tmp_path, fault):
+    """The process may be up but deaf: a link reader that died (an error it cannot handle) or hangs must stop the
+    WATCHDOG pings, so systemd restarts the service; a reader that dies says why."""
+    import asyncio
+    import threading
+    import time
+
+    from companion.config import load_config
+    from companion.runtime.runner import Runtime
+
+    srv, path = _server(tmp_path)
+    srv.setblocking(False)
+    notifier = Notifier({"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "400000"})  # a ping every 0.2 s
+    cfg = load_config(None, {"link.connect": f"udpin:127.0.0.1:{free_port()}"})
+    logs: list[str] = []
+    rt = Runtime(cfg, None, notifier=notifier, log=logs.append)
+    release = threading.Event()
+
+    def pings() -> int:
+        n = 0
+        while True:
+            try:
+                n += srv.recv(4096) == b"WATCHDOG=1"
+            except BlockingIOError:
+                return n
+
+    async def until(cond, limit_s=120.0):
+        end = time.monotonic() + limit_s
+        while not cond():
+            assert time.monotonic() < end, "timed out"
+            await asyncio.sleep(0.02)
+
+    def broken_recv(timeout_s):
+        if fault == "dies":
+            raise RuntimeError("reader broken by the test")
+        release.wait(60)  # hangs (until the test ends)
+        return b""
+
+    async def main():
+        task = asyncio.ensure_future(rt.run())
+        seen = [0]
+        await until(lambda: rt.link._transport is not None)
+        await until(lambda: seen.__setitem__(0, seen[0] + pings()) or seen[0] >= 2)  # pinging while all is well
+        rt.link._transport.recv = broken_recv
+        if fault == "dies":
+            await until(lambda: not rt.link.thread_alive)
+        else:
+            await until(lambda: time.monotonic() - rt.link.alive_at > 2 * notifier.watchdog_period_s)
+        await asyncio.sleep(notifier.watchdog_period_s)  # a ping already decided may still be on its way
+        pings()
+        quiet_from = time.monotonic()
+        await asyncio.sleep(5 * notifier.watchdog_period_s)
+        late = pings()
+        quiet_s = time.monotonic() - quiet_from
+        release.set()
+        rt._stop_requested = True
+        task.cancel()
+        try:
+            await task
+        except asyncio.CancelledError:
+            pass
+        return late, quiet_s
+
+    late, quiet_s = asyncio.run(main())
+    srv.close()
+    assert late == 0, f"{late} WATCHDOG pings in the {quiet_s:.1f} s after the link reader {fault}"
+    if fault == "dies":
+        assert any("link failed" in line and "reader broken by the test" in line for line in logs), logs

@@ -1,0 +1,52 @@
+"""The navigator's linear Kalman filter: known posteriors, and filterpy's KalmanFilter bit for bit."""
+
+import numpy as np
+import pytest
+
+from companion.nav.kalman import KalmanFilter
+
+
+def test_scalar_update_matches_the_closed_form():
+    kf = KalmanFilter(dim_x=1, dim_z=1)
+    kf.x[:] = 2.0
+    kf.P[:] = 4.0
+    kf.update(np.array([[5.0]]), R=np.array([[1.0]]), H=np.eye(1))
+    gain = 4.0 / (4.0 + 1.0)
+    assert kf.x[0, 0] == pytest.approx(2.0 + gain * 3.0, rel=1e-15)
+    assert kf.P[0, 0] == pytest.approx(4.0 * 1.0 / 5.0, rel=1e-15)
+
+
+def test_predict_propagates_a_constant_velocity_state():
+    kf = KalmanFilter(dim_x=2, dim_z=1)
+    kf.x = np.array([[1.0], [2.0]])
+    kf.P = np.diag([1.0, 0.5])
+    F = np.array([[1.0, 3.0], [0.0, 1.0]])
+    kf.predict(F=F, Q=np.diag([0.1, 0.2]))
+    assert kf.x.ravel().tolist() == [7.0, 2.0]
+    np.testing.assert_allclose(kf.P, [[1.0 + 9 * 0.5 + 0.1, 1.5], [1.5, 0.7]], rtol=1e-15)
+
+
+def test_bit_identical_to_filterpy_over_a_random_run():
+    fp = pytest.importorskip("filterpy.kalman")
+    rng = np.random.default_rng(7)
+    ours, ref = KalmanFilter(dim_x=15, dim_z=3), fp.KalmanFilter(dim_x=15, dim_z=3)
+    P0 = np.diag(rng.uniform(0.1, 10.0, 15))
+    ours.P, ref.P = P0.copy(), P0.copy()
+    for _ in range(200):
+        F = np.eye(15) + 0.01 * rng.standard_normal((15, 15))
+        Q = np.diag(rng.uniform(1e-6, 1e-2, 15))
+        ours.predict(F=F, Q=Q)
+        ref.predict(F=F, Q=Q)
+        H = np.zeros((3, 15))
+        H[:, rng.choice(15, 3, replace=False)] = np.eye(3)
+        R = np.diag(rng.uniform(0.1, 4.0, 3))
+        z = rng.standard_normal((3, 1))
+        ours.update(z, R=R, H=H)
+        ref.update(z, R=R, H=H)
+    assert np.array_equal(ours.x, ref.x) and np.array_equal(ours.P, ref.P)
+    assert np.allclose(ours.P, ours.P.T) and np.all(np.linalg.eigvalsh(ours.P) > 0)
+
+
+def test_rejects_empty_dimensions():
+    with pytest.raises(ValueError):
+        KalmanFilter(dim_x=0, dim_z=1)
