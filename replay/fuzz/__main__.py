@@ -118,7 +118,7 @@ def run_replay_fuzz(a, load: Load) -> tuple[list[dict], str]:
     base_rows = [[c.name, c.kind, len(c.data), base[c.name].returncode, round(base[c.name].wall_s, 2),
                   round(base[c.name].cpu_s, 2), round(base[c.name].maxrss_kb / 1024, 1)] for c in inputs]
     cmd = " ".join(["nice -n 10 .venv/bin/python -m replay.fuzz", f"--mutants {a.mutants}", f"--seed {a.seed}",
-                    f"--jobs {a.jobs}", *([f"--mode {a.mode}"] if a.mode != "subprocess" else []),
+                    *([f"--jobs {a.jobs}"] if a.mode == "subprocess" else [f"--mode {a.mode}"]),
                     *([f"--size {a.size}"] if a.size != 200_000 else []), *([f"--kinds {a.kinds}"] if a.kinds else [])])
     text = "\n".join([
         "## Mutated logs through `companion replay`",
@@ -129,7 +129,8 @@ def run_replay_fuzz(a, load: Load) -> tuple[list[dict], str]:
         "",
         f"{len(outcomes)} mutants ({len(kinds)} kinds, dealt round-robin) of {len(inputs)} clean inputs cut from the "
         f"shared real logs ({shared_logs_dir()}), each replayed as `companion replay MUTANT --out OUT.mcap --quiet` "
-        f"({'a subprocess' if a.mode == 'subprocess' else 'a forked child of the benchmark'}), {a.jobs} at a time; "
+        f"({'a subprocess' if a.mode == 'subprocess' else 'a forked child of the benchmark'}), "
+        f"{a.jobs if a.mode == 'subprocess' else 1} at a time; "
         f"{wall / 60:.1f} min wall. {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}; "
         f"{load.text()} (other jobs share the machine).",
         "",
