@@ -480,9 +480,7 @@ def main(argv: list[str] | None = None) -> int:
         rc = args.func(args)
         if argv is None and getattr(args, "exit_now", False):
             # the process's own command line, record finalised: skip the interpreter's teardown (0.8-2 s measured on
-            # a loaded machine with scipy and filterpy loaded), most of the 2 s a SIGTERM may take
-            import logging
-
+            # a loaded machine with scipy loaded), most of the 2 s a SIGTERM may take
             logging.shutdown()
             sys.stdout.flush()
             sys.stderr.flush()
