@@ -89,7 +89,9 @@ class InjectConfig:
     # a state keeps its fix type only if it was aided within ``aid_valid_s`` by information the autopilot lacks
     # (``outage_aids``), else it goes out as no fix and ArduPilot dead-reckons exactly as it would alone.
     # always: every valid state with its covariance's fix type (the companion as the GPS the EKF follows).
-    # gnss_loss: only while the receiver has no 3D fix (ArduPilot refuses to arm: GPSn without a 3D fix).
+    # gnss_loss: while the receiver has no 3D fix (until it is healthy again for ``recover_s``), and while the autopilot
+    # says it is disarmed (its arming check needs a 3D fix on every configured GPS); nothing while armed beside a
+    # healthy receiver. With no HEARTBEAT (a dataflash log) the armed state is unknown: only the outage counts.
     activate: str = "backup"
     outage_aids: str = "position_fix"  # '+'-separated FusedState.measurement names that count as aid in an outage
     aid_valid_s: float = 300.0  # an aid keeps the fix type this long (the covariance grows and degrades it meanwhile)
@@ -242,7 +244,7 @@ class Injector(Stage):
         # the receiver's recent 3D fixes: (t_s, lat, lon, sigma_h, vel_n, vel_e), velocities None when not given
         self._rx_fixes: deque[tuple[float, float, float, float, float | None, float | None]] = deque(maxlen=RX_FIXES_KEPT)
         self._inconsistent = False
-        self._armed = False  # the autopilot's HEARTBEAT armed flag
+        self._armed: bool | None = None  # the autopilot's HEARTBEAT armed flag (None: never heard)
         self.cross_checked = 0  # states compared with a receiver fix, of cross_check_states that reached the check
         self.cross_check_states = 0
 
@@ -364,7 +366,7 @@ class Injector(Stage):
         ):
             self._healthy_since = None
             out += self._set_active(s.t_s, True, f"receiver silent for more than {c.gnss_timeout_s:g} s")
-        if not self._active:
+        if not (self._active or (c.activate == "gnss_loss" and self._armed is False)):
             return out
         if not _finite(s.t_s):
             return out + self._drop(0.0, "non-finite time")

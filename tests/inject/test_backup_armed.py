@@ -41,3 +41,20 @@ def test_default_keeps_the_fix_while_armed():
     inj.process(fix(9.95))
     (rec,) = tick(inj, state(t_s=10.0))
     assert rec.fix_type == FixType.FIX_3D
+
+
+def test_gnss_loss_sends_while_disarmed_for_the_arming_check_then_only_in_an_outage():
+    inj = Injector(InjectConfig(mode="shadow", activate="gnss_loss", recover_s=2.0, gnss_timeout_s=0.6))
+    inj.process(fix(9.95))
+    assert tick(inj, state(t_s=10.0)) == []  # armed state unknown (no HEARTBEAT, e.g. a dataflash log): nothing
+    inj.process(_heartbeat(10.05, armed=False))
+    inj.process(fix(10.1))
+    (rec,) = tick(inj, state(t_s=10.2))
+    assert rec.fix_type == FixType.FIX_3D  # disarmed: every configured GPS needs a 3D fix to arm
+    inj.process(_heartbeat(10.25, armed=True))
+    inj.process(fix(10.3))
+    assert tick(inj, state(t_s=10.4)) == []  # armed beside a healthy receiver: nothing
+    on = inj.process(fix(10.5, fix_type=1))
+    assert on and on[0].active
+    (rec,) = tick(inj, state(t_s=10.6, sigma_h=2.0))
+    assert rec.fix_type == FixType.FIX_3D  # the outage: the companion's own solution, with its covariance's fix type
