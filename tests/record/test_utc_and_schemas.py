@@ -1,5 +1,6 @@
 """A replayed real log opens with its real UTC date in independent readers; every message validates
-against the JSON schema embedded in the record (standard ``jsonschema``)."""
+against the JSON schema embedded in the record (standard ``jsonschema``), and every schema has the shape
+Foxglove's JSON-schema reader takes (one type per field: see companion.record.schemas)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from mcap.reader import make_reader
 from companion.cli import main
 from companion.record.clock import RecordClock, gps_minus_utc_s, gps_to_unix_s
 from tests.conftest import LOG_ERLE, require
+from tests.record.test_record import assert_foxglove_parsable
 
 
 def test_leap_seconds_by_date():
@@ -67,8 +69,19 @@ def test_every_message_validates_against_its_schema(erle_record):
             if v is None:
                 s = json.loads(schema.data)
                 jsonschema.Draft202012Validator.check_schema(s)
+                assert_foxglove_parsable(s, channel.topic)
                 v = validators[schema.id] = jsonschema.Draft202012Validator(s)
-            errors = list(v.iter_errors(json.loads(message.data)))
+            payload = json.loads(message.data)
+            errors = list(v.iter_errors(payload))
             assert not errors, f"{channel.topic}: {errors[0].message}"
+            assert not _has_null(payload), f"{channel.topic}: a null value (unknowns are left out)"
             n += 1
     assert n > 1000 and len(validators) >= 5
+
+
+def _has_null(v) -> bool:
+    if isinstance(v, dict):
+        return any(_has_null(x) for x in v.values())
+    if isinstance(v, list):
+        return any(_has_null(x) for x in v)
+    return v is None
