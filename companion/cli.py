@@ -268,8 +268,12 @@ def cmd_run(args) -> int:
             live_view = LiveView(*parse_endpoint(args.foxglove))
         except ValueError as err:
             raise UsageError(str(err)) from None
+    from companion.record.clock import RecordClock
+
+    # log times in UTC from the vehicle's first GPS time or SYSTEM_TIME on; before it, the host's UTC clock (one
+    # clock for every segment)
     rec_kw = dict(flush_interval_s=config.record.flush_interval_s, fsync=config.record.fsync,
-                  clock=None, live_view=live_view)  # live records stay on boot time (see RecordClock)
+                  clock=RecordClock(host_fallback=True), live_view=live_view)
     if config.record.segment_s > 0 or config.record.max_total_mb > 0:
         recorder = RotatingRecorder(out, segment_s=config.record.segment_s,
                                     max_total_bytes=int(config.record.max_total_mb * 1e6), **rec_kw)

@@ -221,13 +221,18 @@ def test_live_path_gives_the_replay_payloads(tmp_path):
 
     def payloads(path):
         d: dict[str, list] = {}
-        # compared on the vehicle clock: a replay's log times are UTC (its clock metadata gives the offset)
-        offset = int((summarize(path).metadata_dict("clock") or {}).get("utc_offset_ns", 0))
-        for topic, t_ns, data in iter_payloads(path):
+        # compared on the vehicle clock in the payloads: log times are UTC, and a live run stamps what comes before
+        # the vehicle's first SYSTEM_TIME with the host's UTC clock (a replay looks ahead)
+        for topic, _log_ns, data in iter_payloads(path):
             if not topic.startswith(skip):
-                d.setdefault(topic, []).append((t_ns - offset, data))
+                p = json.loads(data)
+                t_ns = round(p["t_s"] * 1e9) if "t_s" in p else p["timestamp"]["sec"] * 10**9 + p["timestamp"]["nsec"]
+                d.setdefault(topic, []).append((t_ns, data))
         return d
 
+    clocks = [summarize(tmp_path / f).metadata_dict("clock") for f in ("live.mcap", "replay.mcap")]
+    assert all(c["log_time"] == "UTC, Unix epoch ns" for c in clocks), clocks
+    assert clocks[0]["utc_offset_ns"] == clocks[1]["utc_offset_ns"]  # live and replay on the same UTC
     live, replay = payloads(tmp_path / "live.mcap"), payloads(tmp_path / "replay.mcap")
     last_ns = max(t for v in live.values() for t, _ in v)
     cut_ns = last_ns - 3_000_000_000  # the live run stops mid-flight: leave out the navigator's final flush
