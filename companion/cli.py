@@ -378,7 +378,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     n = sub.add_parser("run", help="run on a live MAVLink link (the companion service)")
     n.add_argument("--config", help="TOML settings file (e.g. /etc/companion/companion.toml); options below override it")
-    n.add_argument("--connect", help="udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, tcpin:HOST:PORT or a serial device")
+    n.add_argument("--connect", help="as pymavlink: udpin:HOST:PORT (or HOST:PORT), udpout:HOST:PORT, udpbcast:HOST:PORT, tcp:HOST:PORT, "
+                        "tcpin:HOST:PORT or a serial device (DEV or DEV,BAUD); mcast:, uds:, ws: are not supported")
     n.add_argument("--baud", type=int, default=None, help="serial baud rate (default 115200)")
     n.add_argument("--out", help="MCAP file, or a directory for one file per run (default: out/live.mcap)")
     n.add_argument("--system-id", type=int, default=None, help="our MAVLink system id (default 1)")

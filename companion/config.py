@@ -41,7 +41,7 @@ GRAVITY_STREAMS_HZ = {"GLOBAL_POSITION_INT": 5.0}
 class LinkConfig:
     """The MAVLink link to the autopilot and how the companion presents itself on it."""
 
-    connect: str = ""  # udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, or a serial device
+    connect: str = ""  # pymavlink's strings: udpin:/udpout:/udpbcast:/tcp:/tcpin:HOST:PORT, HOST:PORT, a serial device
     baud: int = 115200
     system_id: int = 1  # our system id (ArduPilot convention: the vehicle's own id for onboard components)
     component_id: int = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
