@@ -43,13 +43,18 @@ def _short_label(text: str, width: int) -> str:
     return text[: (keep + 1) // 2] + "…" + text[len(text) - keep // 2:]
 
 
+def _bar_label(desc: str, columns: int) -> str:
+    """The progress bar's label at a terminal ``columns`` wide: the counts, ETA and rate need ~45 columns and the bar
+    itself at least 13, so the label gets the rest (at least 8), cut in the middle."""
+    return _short_label(desc, max(8, columns - 58))
+
+
 def _progress_bar(total: int | None, desc: str, quiet: bool):
     import shutil
 
     from tqdm import tqdm
 
-    # the bar, counts, ETA and rate need ~55 columns: the label gets the rest (at least 12)
-    desc = _short_label(desc, max(12, shutil.get_terminal_size((80, 24)).columns - 58))
+    desc = _bar_label(desc, shutil.get_terminal_size((80, 24)).columns)
 
     # disable=None: shown on a terminal, silent when stderr is a file or a pipe (CI logs stay clean)
     return tqdm(
@@ -116,6 +121,17 @@ def _stage_metadata(stage) -> dict[str, str]:
     return {k: str(v) for k, v in stage.metadata().items() if v is not None and v != ""}
 
 
+def _summary_line(label: str, text: str) -> str:
+    """``label`` in a 12-column field, then ``text`` wrapped to the terminal (at least 60 columns), continuation lines
+    under the text."""
+    import shutil
+    import textwrap
+
+    width = max(60, shutil.get_terminal_size((80, 24)).columns)
+    return textwrap.fill(text, width=width, initial_indent=f"{label:<12} ", subsequent_indent=" " * 13,
+                         break_on_hyphens=False, break_long_words=False)
+
+
 def _print_summary(source, pipeline, out: Path, stopped_by: str | None, elapsed_s: float, *, recorded: bool = True) -> None:
     print(f"source       {source.info.kind} {source.info.location}")
     for k, v in source.info.details.items():
@@ -124,10 +140,10 @@ def _print_summary(source, pipeline, out: Path, stopped_by: str | None, elapsed_
     for stage in pipeline.stages:
         label = _short_label(type(stage).__name__.lower(), 12)
         for k, v in _stage_metadata(stage).items():
-            print(f"{label:<12} {k}: {v}")
+            print(_summary_line(label, f"{k}: {v}"))
     for w in source.info.warnings:
         # other systems on the link (a ground station's heartbeats) are normal traffic, not a problem
-        print(f"{'ignored' if 'other system' in w and w.startswith('dropped') else 'warning:'} {w}")
+        print(_summary_line("ignored" if "other system" in w and w.startswith("dropped") else "warning:", w))
     n = sum(pipeline.stats.counts.values())
     rate = f"{n / elapsed_s:,.0f} events/s" if elapsed_s > 0 else "-"
     print(f"processed    {n} events in {elapsed_s:.2f} s wall time ({rate})")

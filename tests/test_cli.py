@@ -237,6 +237,30 @@ def test_terminal_labels_and_help(capsys):
     assert "an .mcap record" in capsys.readouterr().out
 
 
+@pytest.mark.parametrize("columns", [80, 100, 60])
+def test_progress_bar_fits_the_terminal_with_a_long_log_name(columns):
+    from tqdm import tqdm
+
+    from companion.cli import _bar_label
+
+    desc = _bar_label("replay ac33dev_erle-pxf_quad_2014-11-06_GPS_issues1_inflight-gps-loss.bin", columns)
+    line = tqdm.format_meter(509_000, 593_000, 6.5, ncols=columns, prefix=desc, unit="B", unit_scale=True)
+    bar = line.split("|")[1]
+    assert len(line) <= columns and len(bar) >= 10, line  # the bar is drawn and nothing is cut ...
+    assert line.rstrip().endswith("B/s]") and "<00:01" in line, line  # ... ETA and rate included
+
+
+def test_summary_lines_wrap_to_the_terminal(monkeypatch):
+    from companion.cli import _summary_line
+
+    monkeypatch.setenv("COLUMNS", "80")
+    text = _summary_line("navigator", "mode_reason: IMU0 slower than the 20 Hz strapdown mechanisation needs: "
+                                      "kinematic constant-velocity model")
+    lines = text.splitlines()
+    assert len(lines) == 2 and all(len(x) <= 80 for x in lines)
+    assert lines[1].startswith(" " * 13) and lines[1][13] != " "  # under the text, not under the label
+
+
 def test_collect_benchmarks_help_writes_nothing():
     bench = REPO / "BENCHMARKS.md"
     before = bench.read_bytes() if bench.exists() else None
