@@ -458,6 +458,9 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--noise", action="store_true", help="bad input once a second: garbage, bad CRC, other systems, NaN, duplicates")
     v.add_argument("--signing-key-file", default=None, help="sign what we send, accept only signed frames")
     v.add_argument("--record", help="JSON-lines record of every GPS_INPUT received (with truth and error)")
+    v.add_argument("--idle-exit", type=float, default=10.0, metavar="SECONDS",
+                   help="end once the companion has gone quiet this long after it was heard (default 10: a companion "
+                        "reconnects within its 8 s back-off; 0: serve until the flight ends or SIGTERM)")
     v.set_defaults(func=cmd_sim)
 
     i = sub.add_parser("inspect", help="summarise an MCAP record: topics, counts, time span")

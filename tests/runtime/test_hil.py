@@ -11,6 +11,7 @@ import math
 import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 
@@ -245,3 +246,17 @@ def test_live_path_gives_the_replay_payloads(tmp_path):
         assert a == b, topic
         compared += len(a)
     assert compared > 3000 and cut_ns > 50e9
+
+
+def test_simulator_ends_once_the_companion_is_gone(tmp_path):
+    """The README's background `companion sim ... &` ends on its own once `companion run` has exited."""
+    sim = Sim(tmp_path, "--idle-exit", 3)  # the sample flight is 174 s long
+    comp = run_companion(sim.port, tmp_path / "c.mcap", "--duration", 5)
+    _out, err = comp.communicate(timeout=90)
+    assert comp.returncode == 0, err
+    t0 = time.monotonic()
+    sim.proc.wait(timeout=60)  # long before the flight's end
+    waited_s = time.monotonic() - t0
+    recs = sim.finish()
+    idle = [r for r in recs if r["event"] == "idle_exit"]
+    assert idle and idle[0]["play_s"] < 60.0 and waited_s < 60.0
