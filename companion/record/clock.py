@@ -14,67 +14,19 @@ its record is in UTC from the first message on. A live run learns it on the way;
 that (link events before the first vehicle message, or a vehicle without GPS time yet) get the host's
 UTC clock, marked in the ``clock`` metadata record, instead of all being stamped 0.
 
-Leap seconds come from the IANA tz database's ``leap-seconds.list`` (Debian package ``tzdata``, kept
-up to date by the OS), read at import; a built-in table (to the 2017-01-01 leap second) serves when
-that file is absent. astropy (with its IERS tables) would also know them but is a large dependency
-that wants to download its tables at run time; the tz database is already on every Debian machine.
+Leap seconds: :mod:`companion.gpstime` (the tz database's list, kept up to date by the OS).
 """
 
 from __future__ import annotations
 
-import bisect
-import calendar
 import math
 import time
 from pathlib import Path
 from typing import Any
 
-from companion.constants import GPS_EPOCH_UNIX_S, WEEK_S
+from companion.gpstime import LEAP_SOURCE, gps_minus_utc_s, gps_to_unix_s
 
-LEAP_SECONDS_FILE = Path("/usr/share/zoneinfo/leap-seconds.list")
-_NTP_TO_UNIX_S = 2208988800  # 1900-01-01 -> 1970-01-01
-_TAI_MINUS_GPS_S = 19
-
-#: (UTC date, GPS - UTC in s from then on): the leap seconds since the GPS epoch.
-_BUILTIN = [
-    ((1981, 7, 1), 1), ((1982, 7, 1), 2), ((1983, 7, 1), 3), ((1985, 7, 1), 4), ((1988, 1, 1), 5),
-    ((1990, 1, 1), 6), ((1991, 1, 1), 7), ((1992, 7, 1), 8), ((1993, 7, 1), 9), ((1994, 7, 1), 10),
-    ((1996, 1, 1), 11), ((1997, 7, 1), 12), ((1999, 1, 1), 13), ((2006, 1, 1), 14), ((2009, 1, 1), 15),
-    ((2012, 7, 1), 16), ((2015, 7, 1), 17), ((2017, 1, 1), 18),
-]
-
-
-def _load_table(path: Path = LEAP_SECONDS_FILE) -> tuple[list[int], list[int], str]:
-    """(Unix times of the steps, GPS - UTC from each step, where the table came from)."""
-    try:
-        rows = []
-        for line in path.read_text(encoding="ascii").splitlines():
-            parts = line.split("#", 1)[0].split()
-            if len(parts) >= 2:
-                rows.append((int(parts[0]) - _NTP_TO_UNIX_S, int(parts[1]) - _TAI_MINUS_GPS_S))
-        rows = [(t, n) for t, n in rows if n > 0]
-        if rows:
-            return [t for t, _ in rows], [n for _, n in rows], str(path)
-    except (OSError, ValueError):
-        pass
-    steps = [calendar.timegm((y, m, d, 0, 0, 0)) for (y, m, d), _ in _BUILTIN]
-    return steps, [n for _, n in _BUILTIN], "built-in table (to 2017-01-01)"
-
-
-_STEPS, _LEAPS, LEAP_SOURCE = _load_table()
-
-
-def gps_minus_utc_s(unix_s: float) -> int:
-    """Leap seconds between GPS time and UTC at a UTC instant (0 before 1981-07-01)."""
-    i = bisect.bisect_right(_STEPS, unix_s)
-    return _LEAPS[i - 1] if i else 0
-
-
-def gps_to_unix_s(week: int, tow_s: float) -> float:
-    """UTC Unix time of a GPS week and time of week."""
-    gps_as_unix = GPS_EPOCH_UNIX_S + week * WEEK_S + tow_s
-    return gps_as_unix - gps_minus_utc_s(gps_as_unix - gps_minus_utc_s(gps_as_unix))
-
+__all__ = ["RecordClock", "find_utc_offset", "gps_minus_utc_s", "gps_to_unix_s", "utc_of", "LEAP_SOURCE"]
 
 def utc_of(item: Any) -> tuple[float, str] | None:
     """(Unix time at ``item.t_s``, how it is known) for an event that tells the vehicle's UTC, else None."""
