@@ -271,9 +271,13 @@ def cmd_run(args) -> int:
     except ConfigError as err:
         raise UsageError(str(err)) from None
     out = Path(config.record.out)
+    earlier: list[Path] = []  # a record directory's earlier runs: inside the disk budget, deleted oldest first
     if config.record.out.endswith("/") or out.is_dir():
         import datetime
+        import re
 
+        named = re.compile(r"companion-\d{8}T\d{6}Z(-\d{3})?\.mcap")  # only the service's own records
+        earlier = sorted(q for q in out.glob("companion-*.mcap") if named.fullmatch(q.name)) if out.is_dir() else []
         out = out / datetime.datetime.now(datetime.timezone.utc).strftime("companion-%Y%m%dT%H%M%SZ.mcap")
     out.parent.mkdir(parents=True, exist_ok=True)
     live_view = None
@@ -292,7 +296,7 @@ def cmd_run(args) -> int:
                   clock=RecordClock(host_fallback=True), live_view=live_view)
     if config.record.segment_s > 0 or config.record.max_total_mb > 0:
         recorder = RotatingRecorder(out, segment_s=config.record.segment_s,
-                                    max_total_bytes=int(config.record.max_total_mb * 1e6), **rec_kw)
+                                    max_total_bytes=int(config.record.max_total_mb * 1e6), earlier=earlier, **rec_kw)
     else:
         recorder = Recorder(out, **rec_kw)
     try:
@@ -321,7 +325,7 @@ def cmd_run(args) -> int:
     for path in getattr(recorder, "paths", [])[:-1]:
         print(f"record       {path} (earlier segment)")
     if getattr(recorder, "deleted", None):
-        print(f"record       {len(recorder.deleted)} oldest segments deleted (record.max_total_mb)")
+        print(f"record       {len(recorder.deleted)} oldest records deleted (record.max_total_mb)")
     if recorder.write_error is not None:
         err = recorder.write_error
         print(f"record       stopped: cannot write {err.filename}: {err.strerror} "

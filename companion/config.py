@@ -73,8 +73,9 @@ class RecordConfig:
     # service that runs for hours keeps flat memory (an MCAP writer indexes every chunk until it closes);
     # 0 writes one file (the default for interactive runs; the service's example config sets 900)
     segment_s: float = 0.0
-    # disk budget of one run's record (0: none): segments are cut at a quarter of it and the oldest deleted
-    # (companion.record.rotating); with segment_s = 0 files are cut by size only
+    # disk budget (0: none): segments are cut at a quarter of it and the oldest deleted (companion.record.rotating);
+    # with segment_s = 0 files are cut by size only. With `out` a directory it bounds the directory: earlier runs'
+    # companion-<UTC>.mcap records there count and are deleted first, oldest first (the service's example sets 2000)
     max_total_mb: float = 0.0
 
 
