@@ -202,7 +202,10 @@ def _number(description: str) -> dict:
 
 #: Foxglove's ``foxglove.LocationFix`` JSON schema (foxglove/foxglove-sdk, schemas/jsonschema/LocationFix.json),
 #: the message the Map panel draws. ``position_covariance`` is ENU (East, North, Up), m^2, row-major,
-#: as in ROS sensor_msgs/NavSatFix.
+#: as in ROS sensor_msgs/NavSatFix. A copy, kept because Foxglove ships its JSON schemas on npm only: the
+#: foxglove-sdk Python package has LocationFix as protobuf, and a protobuf message in the record would be the one
+#: topic ``jsonschema`` cannot validate and ``companion inspect`` cannot read without protobuf.
+#: tests/record/test_location_fix.py checks this copy field by field against the SDK's schema.
 LOCATION_FIX_SCHEMA: dict = {
     "title": LOCATION_FIX_SCHEMA_NAME,
     "description": "A navigation satellite fix for any Global Navigation Satellite System",
