@@ -365,7 +365,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     def add_parser(name, **kw):
         kw.setdefault("parents", [common])
-        kw.setdefault("epilog", _EPILOG)
+        kw.setdefault("epilog", _epilog(name))
         kw.setdefault("formatter_class", argparse.RawDescriptionHelpFormatter)
         return _orig_add_parser(name, **kw)
 
@@ -473,11 +473,24 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-_EPILOG = """exit codes:
-  0    done (also: stopped by SIGTERM or --duration)
-  2    unusable input or settings: nothing useful was done
-  3    the log was truncated or corrupt: everything readable was replayed and recorded
-  130  interrupted (Ctrl-C / SIGINT); the record is finalised with what was read"""
+_EXIT_LINES = {
+    "ok": "  0    done",
+    "ok_run": "  0    done, also when stopped by SIGTERM (systemd stop) or --duration",
+    "error": "  2    unusable input or settings: nothing useful was done (one line on stderr says why)",
+    "damaged": "  3    the log was truncated or corrupt: everything readable was replayed and recorded",
+    "int": "  130  interrupted (Ctrl-C / SIGINT); the record is finalised with what was read",
+    "ok_sim": "  0    done: the flight ended, the companion went quiet (--idle-exit), or SIGTERM / Ctrl-C",
+}
+_EXITS = {None: ("ok_run", "error", "damaged", "int"), "replay": ("ok", "error", "damaged", "int"),
+          "run": ("ok_run", "error", "int"), "sim": ("ok_sim", "error"), "inspect": ("ok", "error")}
+
+
+def _epilog(command: str | None) -> str:
+    """The exit codes a command can end with."""
+    return "exit codes:\n" + "\n".join(_EXIT_LINES[k] for k in _EXITS[command])
+
+
+_EPILOG = _epilog(None)
 
 
 def _add_verbosity(parser: argparse.ArgumentParser, default) -> None:

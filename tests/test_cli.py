@@ -234,7 +234,15 @@ def test_terminal_labels_and_help(capsys):
     assert "``" not in text and "exit codes" in text and "130" in text
     with pytest.raises(SystemExit):
         build_parser().parse_args(["inspect", "--help"])
-    assert "an .mcap record" in capsys.readouterr().out
+    inspect_help = capsys.readouterr().out
+    assert "an .mcap record" in inspect_help and "  2 " in inspect_help and "  3 " not in inspect_help
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["replay", "--help"])
+    replay_help = capsys.readouterr().out
+    assert "  3    the log was truncated" in replay_help and "--duration" not in replay_help.split("exit codes:")[1]
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["run", "--help"])
+    assert "SIGTERM (systemd stop)" in capsys.readouterr().out.split("exit codes:")[1]
 
 
 @pytest.mark.parametrize("columns", [80, 100, 60])
