@@ -514,7 +514,7 @@ def main(argv: list[str] | None = None) -> int:
     from companion.sources import SourceError
 
     args = build_parser().parse_args(argv)
-    from companion.logsetup import configure
+    from companion.logsetup import configure, stderr_line
 
     configure(getattr(args, "verbose", 0) or 0, getattr(args, "quiet", 0) or 0)
     try:
@@ -528,17 +528,17 @@ def main(argv: list[str] | None = None) -> int:
             os._exit(rc)
         return rc
     except (SourceError, UsageError, RecordError) as err:
-        print(f"companion: error: {err}", file=sys.stderr)
+        stderr_line(f"companion: error: {err}")
         return EXIT_ERROR
     except KeyboardInterrupt:
-        print("companion: interrupted", file=sys.stderr)
+        stderr_line("companion: interrupted", 4)
         return EXIT_INTERRUPTED
     except BrokenPipeError:  # output piped into `head` and closed: not an error of ours
         sys.stderr.close()
         return EXIT_OK
     except OSError as err:
         where = f"{err.filename}: " if err.filename else ""
-        print(f"companion: error: {where}{err.strerror or err}", file=sys.stderr)
+        stderr_line(f"companion: error: {where}{err.strerror or err}")
         return EXIT_ERROR
 
 

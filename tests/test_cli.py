@@ -278,6 +278,15 @@ def test_collect_benchmarks_help_writes_nothing():
     assert (bench.read_bytes() if bench.exists() else None) == before
 
 
+def test_errors_under_journald_have_the_error_priority(tmp_path):
+    import os
+
+    env = {**os.environ, "JOURNAL_STREAM": "8:1234"}
+    res = subprocess.run([sys.executable, "-m", "companion.cli", "replay", str(tmp_path / "missing.tlog")],
+                         capture_output=True, text=True, timeout=120, env=env, cwd=REPO)
+    assert res.returncode == 2 and res.stderr.startswith("<3>companion: error: "), res.stderr
+
+
 def test_logging_under_journald_has_priorities_and_no_timestamps(monkeypatch):
     import io
     import logging

@@ -37,7 +37,6 @@ import json
 import math
 import operator
 import os
-import sys
 from collections.abc import Mapping, Sequence
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -47,6 +46,7 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 import companion
 from companion.events import Event
+from companion.logsetup import stderr_line
 from companion.record.clock import RecordClock
 from companion.record.inspect import RecordError
 from companion.record.schemas import (
@@ -406,8 +406,8 @@ class Recorder:
         if self._raise:
             raise self.write_error from err
         if self._announce:
-            print(f"companion: error: recording stopped, cannot write {self.path}: {why} "
-                  f"(navigation and injection go on; {self.path} is not finalised)", file=sys.stderr, flush=True)
+            stderr_line(f"companion: error: recording stopped, cannot write {self.path}: {why} "
+                        f"(navigation and injection go on; {self.path} is not finalised)")
 
     def _add(self, channel_id: int, t_ns: int, data: bytes) -> None:
         if self.write_error is not None:  # the live view (Foxglove) goes on without the file

@@ -129,7 +129,7 @@ def main(argv=None) -> int:
                         f"{np.mean(r['h_acc_m'][sel]):.0f}", f"{np.mean(e <= r['h_acc_m'][sel]):.0%}", types,
                         f"{sel.sum()}", f"{(r['t_s'][-1] - cut) / 60:.0f} of {(r['end_s'] - cut) / 60:.0f}"])
     cmd = (f"nice -n 5 .venv/bin/python -m replay.live.long_denial --hours {a.hours:g} --speed-up {a.speed_up:g} "
-           f"--cruise-speed {a.cruise_speed:g} --origin {a.origin} --line-km {a.line_km:g} --spacing-km {a.spacing_km:g} "
+           f"--cruise-speed {a.cruise_speed:g} --origin={a.origin} --line-km {a.line_km:g} --spacing-km {a.spacing_km:g} "
            f"--gnss-off-s {a.gnss_off_s:g} --sigma-mgal {a.sigma_mgal:g} --seed {a.seed} --sensors {a.sensors}"
            + (f" --name {a.name}" if a.name != a.sensors else ""))
     text = "\n".join([
@@ -188,7 +188,7 @@ def main(argv=None) -> int:
         ax.plot(x, r["err_m"] / 1000.0, color=c, lw=0.8, label=name)
         if len(x):
             span_h = max(span_h, float(x[-1] - x[0]))
-            if x[-1] < (a.hours * 3600.0 - cut) / 3600.0 - 0.05:  # the injector stopped before the flight's end
+            if x[-1] < (r["end_s"] - cut) / 3600.0 - 0.05:  # the injector stopped before the flight's end
                 ax.plot(x[-1], r["err_m"][-1] / 1000.0, "x", color=c, ms=8,
                         label=f"{name}: last GPS_INPUT, {x[-1] * 60:.0f} min after the cut")
     ax.axvline(0.0, color="k", lw=0.6, ls="--")
