@@ -24,7 +24,9 @@ Foxglove Studio opened and Lichtblick continues: a type list throws "Unsupported
 drops the whole topic with "Error in topic ..."). So a payload leaves out a ``None`` or non-finite value
 (a field that may be unknown is not ``required``), and an array that holds one is left out whole. Every
 payload then validates against its embedded schema with ``jsonschema`` (draft 2020-12), and every schema
-has the shape Foxglove reads (``tests/record/test_record.py::assert_foxglove_parsable``).
+has the shape Foxglove reads (``tests/record/test_record.py::assert_foxglove_parsable``). Checked once with that
+reader itself (Lichtblick's parseJsonSchema.ts at 9554e1e, compiled with tsc, run with node over the schemas of
+replayed real logs): 9 of 9 and 13 of 13 accepted; the type-list schemas before were 1 of 9 (LocationFix only).
 """
 
 from __future__ import annotations
