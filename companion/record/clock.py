@@ -19,12 +19,17 @@ Leap seconds: :mod:`companion.gpstime` (the tz database's list, kept up to date 
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from pathlib import Path
 from typing import Any
 
 from companion.gpstime import LEAP_SOURCE, gps_minus_utc_s, gps_to_unix_s
+
+_log = logging.getLogger(__name__)
+#: a host clock further than this from the vehicle's UTC is worth a warning (its early stamps are off by that much)
+HOST_CLOCK_TOLERANCE_S = 2.0
 
 __all__ = ["RecordClock", "find_utc_offset", "gps_minus_utc_s", "gps_to_unix_s", "utc_of", "LEAP_SOURCE"]
 
@@ -54,6 +59,7 @@ class RecordClock:
         self.host_fallback = host_fallback
         self.before_utc = 0  # messages stamped before the UTC was known
         self.first_utc_t_s: float | None = None if offset_ns is None else -math.inf
+        self.host_minus_vehicle_s: float | None = None  # host clock - vehicle UTC when the latter became known (live)
 
     def observe(self, item: Any) -> None:
         if self.offset_ns is not None:
@@ -63,6 +69,14 @@ class RecordClock:
             unix_s, self.source = got
             self.offset_ns = round(unix_s * 1e9) - round(item.t_s * 1e9)
             self.first_utc_t_s = item.t_s
+            if self.host_fallback:
+                # what the messages stamped before now are off by (arrival latency aside): a host without a synced
+                # clock (no RTC, no network) puts them far from the rest of the record
+                self.host_minus_vehicle_s = time.time() - unix_s
+                if self.before_utc and abs(self.host_minus_vehicle_s) > HOST_CLOCK_TOLERANCE_S:
+                    _log.warning("the host clock is %.0f s off the vehicle's UTC (%s): the %d messages recorded before "
+                                 "it was known carry the host's time", self.host_minus_vehicle_s, self.source,
+                                 self.before_utc)
 
     def log_ns(self, t_ns: int) -> int:
         if self.offset_ns is not None:
@@ -84,6 +98,8 @@ class RecordClock:
             if self.before_utc:
                 meta["before_utc"] = (f"{self.before_utc} earlier messages stamped "
                                       + ("with the host UTC clock" if self.host_fallback else "with boot time"))
+            if self.host_minus_vehicle_s is not None:
+                meta["host_clock_minus_vehicle_utc_s"] = f"{self.host_minus_vehicle_s:.3f}"
         meta["payload_time"] = "t_s: vehicle time in s since autopilot boot (running on through reboots)"
         meta["leap_seconds"] = LEAP_SOURCE
         return meta

@@ -37,6 +37,8 @@ def test_clock_before_and_after_utc():
     assert c.metadata()["log_time"].startswith("UTC") and "1 earlier" in c.metadata()["before_utc"]
     live = RecordClock(host_fallback=True)
     assert live.log_ns(0) > 1_600_000_000 * 10**9  # link events before any vehicle time: host UTC, not 0
+    live.observe(SystemTime(t_s=10.0, unix_time_s=1_600_000_000.0))  # a vehicle clock far from the host's
+    assert live.host_minus_vehicle_s > 10**7 and float(live.metadata()["host_clock_minus_vehicle_utc_s"]) > 10**7
 
 
 @pytest.fixture(scope="module")
