@@ -118,7 +118,15 @@ def _finish_record(recorder, source, pipeline, config: dict, stopped_by: str | N
 
 def _stage_metadata(stage) -> dict[str, str]:
     """What a stage says about itself (companion.pipeline.stage.Stage.metadata); unset values left out."""
-    return {k: str(v) for k, v in stage.metadata().items() if v is not None and v != ""}
+    return {k: str(v) for k, v in stage.metadata().items() if v is not None and str(v) not in ("", "None")}
+
+
+def _stage_label(stage) -> str:
+    """A stage's label in the summary's 12-column field: its class name without "Stage", lower case
+    (GravityMatchStage -> gravitymatch), cut in the middle only if still longer."""
+    name = type(stage).__name__
+    name = name[:-5] if name.endswith("Stage") and len(name) > 5 else name
+    return _short_label(name.lower(), 12)
 
 
 def _summary_line(label: str, text: str) -> str:
@@ -132,13 +140,19 @@ def _summary_line(label: str, text: str) -> str:
                          break_on_hyphens=False, break_long_words=False)
 
 
+def _print_labelled(line: str) -> None:
+    """A ``label       text`` summary line from a stage, wrapped like the others; table rows (text indented further)
+    as they are."""
+    print(_summary_line(line[:12].rstrip(), line[13:]) if line[12:13] == " " and line[13:14] not in (" ", "") else line)
+
+
 def _print_summary(source, pipeline, out: Path, stopped_by: str | None, elapsed_s: float, *, recorded: bool = True) -> None:
     print(f"source       {source.info.kind} {source.info.location}")
     for k, v in source.info.details.items():
         print(f"  {k}: {v}")
     print(pipeline.stats.format())
     for stage in pipeline.stages:
-        label = _short_label(type(stage).__name__.lower(), 12)
+        label = _stage_label(stage)
         for k, v in _stage_metadata(stage).items():
             print(_summary_line(label, f"{k}: {v}"))
     for w in source.info.warnings:
@@ -234,7 +248,7 @@ def cmd_replay(args) -> int:
     if args.gravity_map:
         for stage in pipeline.stages:
             for line in stage.summary_lines():
-                print(line)
+                _print_labelled(line)
     if stopped_by:
         return EXIT_INTERRUPTED
     return EXIT_DAMAGED if _damaged(source) else EXIT_OK
@@ -331,7 +345,7 @@ def cmd_run(args) -> int:
         print(f"record       stopped: cannot write {err.filename}: {err.strerror} "
               f"({recorder.dropped_after_error} messages not recorded)")
     for line in runtime.summary_lines():
-        print(line)
+        _print_labelled(line)
     # a service stopped on purpose (SIGTERM, --duration) exits cleanly
     args.exit_now = True  # everything is written: the process may skip the interpreter's teardown (see main)
     return EXIT_INTERRUPTED if stopped_by == "SIGINT" else EXIT_OK

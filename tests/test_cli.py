@@ -230,6 +230,14 @@ def test_terminal_labels_and_help(capsys):
     short = _short_label(name, 22)
     assert len(short) == 22 and short.startswith("replay ac") and short.endswith(".bin")
     assert _short_label("navigator", 12) == "navigator"
+    from companion.cli import _stage_label, _stage_metadata
+
+    class GravityMatchStage:  # noqa: D401 - a stand-in stage
+        def metadata(self):
+            return {"unset": None, "printed_none": "None", "empty": "", "count": 0}
+
+    assert _stage_label(GravityMatchStage()) == "gravitymatch"  # fits the 12-column field whole
+    assert _stage_metadata(GravityMatchStage()) == {"count": "0"}  # no value prints None
     text = build_parser().format_help()
     assert "``" not in text and "exit codes" in text and "130" in text
     with pytest.raises(SystemExit):
