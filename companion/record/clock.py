@@ -45,6 +45,12 @@ def utc_of(item: Any) -> tuple[float, str] | None:
     return None
 
 
+def _unix_ns(unix_s: float) -> int:
+    """A UTC time in ns at the microsecond its sources give (SYSTEM_TIME: us, GPS time of week: ms): a float of
+    ~1.7e9 s holds only ~0.2 us, so ``round(unix_s * 1e9)`` would put 2025-03-15T01:30:00 at 01:29:59.999999936."""
+    return round(unix_s * 1e6) * 1000
+
+
 class RecordClock:
     """Vehicle time -> MCAP log time. ``offset_ns`` None: UTC not known (yet).
 
@@ -67,7 +73,7 @@ class RecordClock:
         got = utc_of(item)
         if got is not None:
             unix_s, self.source = got
-            self.offset_ns = round(unix_s * 1e9) - round(item.t_s * 1e9)
+            self.offset_ns = _unix_ns(unix_s) - round(item.t_s * 1e9)
             self.first_utc_t_s = item.t_s
             if self.host_fallback:
                 # what the messages stamped before now are off by (arrival latency aside): a host without a synced
@@ -110,7 +116,7 @@ async def _first_utc(source) -> tuple[int, str] | None:
         async for ev in source:
             got = utc_of(ev)
             if got is not None:
-                return round(got[0] * 1e9) - round(ev.t_s * 1e9), got[1]
+                return _unix_ns(got[0]) - round(ev.t_s * 1e9), got[1]
     finally:
         await source.aclose()
     return None

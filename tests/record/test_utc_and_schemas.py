@@ -87,3 +87,11 @@ def _has_null(v) -> bool:
     if isinstance(v, list):
         return any(_has_null(x) for x in v)
     return v is None
+
+
+def test_utc_offset_keeps_the_whole_microsecond():
+    from companion.events import SystemTime
+
+    c = RecordClock()
+    c.observe(SystemTime(t_s=0.123, unix_time_s=1_742_002_200.123))  # boot at 2025-03-15T01:30:00Z, to the us
+    assert c.log_ns(0) == 1_742_002_200 * 10**9
