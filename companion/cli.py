@@ -43,13 +43,18 @@ def _short_label(text: str, width: int) -> str:
     return text[: (keep + 1) // 2] + "…" + text[len(text) - keep // 2:]
 
 
+def _bar_label(desc: str, columns: int) -> str:
+    """The progress bar's label at a terminal ``columns`` wide: the counts, ETA and rate need ~45 columns and the bar
+    itself at least 13, so the label gets the rest (at least 8), cut in the middle."""
+    return _short_label(desc, max(8, columns - 58))
+
+
 def _progress_bar(total: int | None, desc: str, quiet: bool):
     import shutil
 
     from tqdm import tqdm
 
-    # the bar, counts, ETA and rate need ~55 columns: the label gets the rest (at least 12)
-    desc = _short_label(desc, max(12, shutil.get_terminal_size((80, 24)).columns - 58))
+    desc = _bar_label(desc, shutil.get_terminal_size((80, 24)).columns)
 
     # disable=None: shown on a terminal, silent when stderr is a file or a pipe (CI logs stay clean)
     return tqdm(
@@ -113,7 +118,32 @@ def _finish_record(recorder, source, pipeline, config: dict, stopped_by: str | N
 
 def _stage_metadata(stage) -> dict[str, str]:
     """What a stage says about itself (companion.pipeline.stage.Stage.metadata); unset values left out."""
-    return {k: str(v) for k, v in stage.metadata().items() if v is not None and v != ""}
+    return {k: str(v) for k, v in stage.metadata().items() if v is not None and str(v) not in ("", "None")}
+
+
+def _stage_label(stage) -> str:
+    """A stage's label in the summary's 12-column field: its class name without "Stage", lower case
+    (GravityMatchStage -> gravitymatch), cut in the middle only if still longer."""
+    name = type(stage).__name__
+    name = name[:-5] if name.endswith("Stage") and len(name) > 5 else name
+    return _short_label(name.lower(), 12)
+
+
+def _summary_line(label: str, text: str) -> str:
+    """``label`` in a 12-column field, then ``text`` wrapped to the terminal (at least 60 columns), continuation lines
+    under the text."""
+    import shutil
+    import textwrap
+
+    width = max(60, shutil.get_terminal_size((80, 24)).columns)
+    return textwrap.fill(text, width=width, initial_indent=f"{label:<12} ", subsequent_indent=" " * 13,
+                         break_on_hyphens=False, break_long_words=False)
+
+
+def _print_labelled(line: str) -> None:
+    """A ``label       text`` summary line from a stage, wrapped like the others; table rows (text indented further)
+    as they are."""
+    print(_summary_line(line[:12].rstrip(), line[13:]) if line[12:13] == " " and line[13:14] not in (" ", "") else line)
 
 
 def _print_summary(source, pipeline, out: Path, stopped_by: str | None, elapsed_s: float, *, recorded: bool = True) -> None:
@@ -122,12 +152,12 @@ def _print_summary(source, pipeline, out: Path, stopped_by: str | None, elapsed_
         print(f"  {k}: {v}")
     print(pipeline.stats.format())
     for stage in pipeline.stages:
-        label = _short_label(type(stage).__name__.lower(), 12)
+        label = _stage_label(stage)
         for k, v in _stage_metadata(stage).items():
-            print(f"{label:<12} {k}: {v}")
+            print(_summary_line(label, f"{k}: {v}"))
     for w in source.info.warnings:
         # other systems on the link (a ground station's heartbeats) are normal traffic, not a problem
-        print(f"{'ignored' if 'other system' in w and w.startswith('dropped') else 'warning:'} {w}")
+        print(_summary_line("ignored" if "other system" in w and w.startswith("dropped") else "warning:", w))
     n = sum(pipeline.stats.counts.values())
     rate = f"{n / elapsed_s:,.0f} events/s" if elapsed_s > 0 else "-"
     print(f"processed    {n} events in {elapsed_s:.2f} s wall time ({rate})")
@@ -218,7 +248,7 @@ def cmd_replay(args) -> int:
     if args.gravity_map:
         for stage in pipeline.stages:
             for line in stage.summary_lines():
-                print(line)
+                _print_labelled(line)
     if stopped_by:
         return EXIT_INTERRUPTED
     return EXIT_DAMAGED if _damaged(source) else EXIT_OK
@@ -255,9 +285,13 @@ def cmd_run(args) -> int:
     except ConfigError as err:
         raise UsageError(str(err)) from None
     out = Path(config.record.out)
+    earlier: list[Path] = []  # a record directory's earlier runs: inside the disk budget, deleted oldest first
     if config.record.out.endswith("/") or out.is_dir():
         import datetime
+        import re
 
+        named = re.compile(r"companion-\d{8}T\d{6}Z(-\d{3})?\.mcap")  # only the service's own records
+        earlier = sorted(q for q in out.glob("companion-*.mcap") if named.fullmatch(q.name)) if out.is_dir() else []
         out = out / datetime.datetime.now(datetime.timezone.utc).strftime("companion-%Y%m%dT%H%M%SZ.mcap")
     out.parent.mkdir(parents=True, exist_ok=True)
     live_view = None
@@ -268,11 +302,15 @@ def cmd_run(args) -> int:
             live_view = LiveView(*parse_endpoint(args.foxglove))
         except ValueError as err:
             raise UsageError(str(err)) from None
+    from companion.record.clock import RecordClock
+
+    # log times in UTC from the vehicle's first GPS time or SYSTEM_TIME on; before it, the host's UTC clock (one
+    # clock for every segment)
     rec_kw = dict(flush_interval_s=config.record.flush_interval_s, fsync=config.record.fsync,
-                  clock=None, live_view=live_view)  # live records stay on boot time (see RecordClock)
+                  clock=RecordClock(host_fallback=True), live_view=live_view)
     if config.record.segment_s > 0 or config.record.max_total_mb > 0:
         recorder = RotatingRecorder(out, segment_s=config.record.segment_s,
-                                    max_total_bytes=int(config.record.max_total_mb * 1e6), **rec_kw)
+                                    max_total_bytes=int(config.record.max_total_mb * 1e6), earlier=earlier, **rec_kw)
     else:
         recorder = Recorder(out, **rec_kw)
     try:
@@ -301,13 +339,13 @@ def cmd_run(args) -> int:
     for path in getattr(recorder, "paths", [])[:-1]:
         print(f"record       {path} (earlier segment)")
     if getattr(recorder, "deleted", None):
-        print(f"record       {len(recorder.deleted)} oldest segments deleted (record.max_total_mb)")
+        print(f"record       {len(recorder.deleted)} oldest records deleted (record.max_total_mb)")
     if recorder.write_error is not None:
         err = recorder.write_error
         print(f"record       stopped: cannot write {err.filename}: {err.strerror} "
               f"({recorder.dropped_after_error} messages not recorded)")
     for line in runtime.summary_lines():
-        print(line)
+        _print_labelled(line)
     # a service stopped on purpose (SIGTERM, --duration) exits cleanly
     args.exit_now = True  # everything is written: the process may skip the interpreter's teardown (see main)
     return EXIT_INTERRUPTED if stopped_by == "SIGINT" else EXIT_OK
@@ -341,7 +379,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     def add_parser(name, **kw):
         kw.setdefault("parents", [common])
-        kw.setdefault("epilog", _EPILOG)
+        kw.setdefault("epilog", _epilog(name))
         kw.setdefault("formatter_class", argparse.RawDescriptionHelpFormatter)
         return _orig_add_parser(name, **kw)
 
@@ -374,7 +412,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     n = sub.add_parser("run", help="run on a live MAVLink link (the companion service)")
     n.add_argument("--config", help="TOML settings file (e.g. /etc/companion/companion.toml); options below override it")
-    n.add_argument("--connect", help="udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, tcpin:HOST:PORT or a serial device")
+    n.add_argument("--connect", help="as pymavlink: udpin:HOST:PORT (or HOST:PORT), udpout:HOST:PORT, udpbcast:HOST:PORT, tcp:HOST:PORT, "
+                        "tcpin:HOST:PORT or a serial device (DEV or DEV,BAUD); mcast:, uds:, ws: are not supported")
     n.add_argument("--baud", type=int, default=None, help="serial baud rate (default 115200)")
     n.add_argument("--out", help="MCAP file, or a directory for one file per run (default: out/live.mcap)")
     n.add_argument("--system-id", type=int, default=None, help="our MAVLink system id (default 1)")
@@ -437,6 +476,9 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--noise", action="store_true", help="bad input once a second: garbage, bad CRC, other systems, NaN, duplicates")
     v.add_argument("--signing-key-file", default=None, help="sign what we send, accept only signed frames")
     v.add_argument("--record", help="JSON-lines record of every GPS_INPUT received (with truth and error)")
+    v.add_argument("--idle-exit", type=float, default=10.0, metavar="SECONDS",
+                   help="end once the companion has gone quiet this long after it was heard (default 10: a companion "
+                        "reconnects within its 8 s back-off; 0: serve until the flight ends or SIGTERM)")
     v.set_defaults(func=cmd_sim)
 
     i = sub.add_parser("inspect", help="summarise an MCAP record: topics, counts, time span")
@@ -445,11 +487,24 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-_EPILOG = """exit codes:
-  0    done (also: stopped by SIGTERM or --duration)
-  2    unusable input or settings: nothing useful was done
-  3    the log was truncated or corrupt: everything readable was replayed and recorded
-  130  interrupted (Ctrl-C / SIGINT); the record is finalised with what was read"""
+_EXIT_LINES = {
+    "ok": "  0    done",
+    "ok_run": "  0    done, also when stopped by SIGTERM (systemd stop) or --duration",
+    "error": "  2    unusable input or settings: nothing useful was done (one line on stderr says why)",
+    "damaged": "  3    the log was truncated or corrupt: everything readable was replayed and recorded",
+    "int": "  130  interrupted (Ctrl-C / SIGINT); the record is finalised with what was read",
+    "ok_sim": "  0    done: the flight ended, the companion went quiet (--idle-exit), or SIGTERM / Ctrl-C",
+}
+_EXITS = {None: ("ok_run", "error", "damaged", "int"), "replay": ("ok", "error", "damaged", "int"),
+          "run": ("ok_run", "error", "int"), "sim": ("ok_sim", "error"), "inspect": ("ok", "error")}
+
+
+def _epilog(command: str | None) -> str:
+    """The exit codes a command can end with."""
+    return "exit codes:\n" + "\n".join(_EXIT_LINES[k] for k in _EXITS[command])
+
+
+_EPILOG = _epilog(None)
 
 
 def _add_verbosity(parser: argparse.ArgumentParser, default) -> None:
@@ -473,7 +528,7 @@ def main(argv: list[str] | None = None) -> int:
     from companion.sources import SourceError
 
     args = build_parser().parse_args(argv)
-    from companion.logsetup import configure
+    from companion.logsetup import configure, stderr_line
 
     configure(getattr(args, "verbose", 0) or 0, getattr(args, "quiet", 0) or 0)
     try:
@@ -487,17 +542,17 @@ def main(argv: list[str] | None = None) -> int:
             os._exit(rc)
         return rc
     except (SourceError, UsageError, RecordError) as err:
-        print(f"companion: error: {err}", file=sys.stderr)
+        stderr_line(f"companion: error: {err}")
         return EXIT_ERROR
     except KeyboardInterrupt:
-        print("companion: interrupted", file=sys.stderr)
+        stderr_line("companion: interrupted", 4)
         return EXIT_INTERRUPTED
     except BrokenPipeError:  # output piped into `head` and closed: not an error of ours
         sys.stderr.close()
         return EXIT_OK
     except OSError as err:
         where = f"{err.filename}: " if err.filename else ""
-        print(f"companion: error: {where}{err.strerror or err}", file=sys.stderr)
+        stderr_line(f"companion: error: {where}{err.strerror or err}")
         return EXIT_ERROR
 
 

@@ -41,7 +41,7 @@ GRAVITY_STREAMS_HZ = {"GLOBAL_POSITION_INT": 5.0}
 class LinkConfig:
     """The MAVLink link to the autopilot and how the companion presents itself on it."""
 
-    connect: str = ""  # udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, or a serial device
+    connect: str = ""  # pymavlink's strings: udpin:/udpout:/udpbcast:/tcp:/tcpin:HOST:PORT, HOST:PORT, a serial device
     baud: int = 115200
     system_id: int = 1  # our system id (ArduPilot convention: the vehicle's own id for onboard components)
     component_id: int = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
@@ -73,8 +73,9 @@ class RecordConfig:
     # service that runs for hours keeps flat memory (an MCAP writer indexes every chunk until it closes);
     # 0 writes one file (the default for interactive runs; the service's example config sets 900)
     segment_s: float = 0.0
-    # disk budget of one run's record (0: none): segments are cut at a quarter of it and the oldest deleted
-    # (companion.record.rotating); with segment_s = 0 files are cut by size only
+    # disk budget (0: none): segments are cut at a quarter of it and the oldest deleted (companion.record.rotating);
+    # with segment_s = 0 files are cut by size only. With `out` a directory it bounds the directory: earlier runs'
+    # companion-<UTC>.mcap records there count and are deleted first, oldest first (the service's example sets 2000)
     max_total_mb: float = 0.0
 
 

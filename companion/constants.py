@@ -19,9 +19,8 @@ CHI2_1DOF_999 = 10.828
 CHI2_2DOF_999 = 13.816
 CHI2_3DOF_999 = 16.266
 
-#: GPS time = UTC + leap seconds; GPS epoch 1980-01-06T00:00:00Z as a Unix time.
+#: GPS epoch 1980-01-06T00:00:00Z as a Unix time; GPS time = UTC + the leap seconds since (companion.gpstime).
 GPS_EPOCH_UNIX_S = 315964800
-GPS_LEAP_S = 18  # GPS - UTC since 2017-01-01 (IERS bulletin C); change with the next leap second
 WEEK_S = 604800
 
 #: Assumed 1-sigma user range error when a receiver gives only DOPs (typical single-frequency u-blox).

@@ -49,3 +49,9 @@ def configure(verbose: int = 0, quiet: int = 0, stream=None) -> None:
     root.addHandler(handler)
     root.setLevel(level_for(verbose, quiet))
     root.propagate = False
+
+
+def stderr_line(text: str, priority: int = 3) -> None:
+    """One line on stderr outside the logger (the CLI's ``companion: error: ...``): under systemd with its syslog
+    priority prefix (3: error, 4: warning), so ``journalctl -p err`` shows it too."""
+    print(f"<{priority}>{text}" if under_journal() else text, file=sys.stderr, flush=True)

@@ -3,6 +3,12 @@
 With ``Type=notify`` systemd passes ``NOTIFY_SOCKET`` (a path, or ``@name`` for the abstract namespace)
 and, with ``WatchdogSec=``, ``WATCHDOG_USEC`` (and ``WATCHDOG_PID``). Each notification is one datagram of
 ``KEY=VALUE`` lines on that AF_UNIX socket. Outside systemd (no NOTIFY_SOCKET) every call does nothing.
+
+Written here on purpose: systemd documents the protocol as its stable interface and gives a standalone
+reimplementation in sd_notify(3) ("Standalone Implementations") rather than asking programs to link libsystemd.
+The Python packages were measured against it: ``systemd-python`` and ``cysystemd`` ship no wheels (a C build
+against libsystemd-dev on the vehicle), ``sdnotify`` (last release 2017) does not read ``WATCHDOG_USEC`` /
+``WATCHDOG_PID``, which this module needs for the watchdog period.
 """
 
 from __future__ import annotations

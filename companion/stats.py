@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections import Counter, defaultdict, deque
+from itertools import islice
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -12,9 +13,13 @@ from companion.events import Event, GnssFix, ImuSample, Reboot
 #: A stream gap: no event at all for longer than max(STREAM_GAP_S, 2 GNSS intervals) (telemetry links
 #: at ~1 Hz pause for a second routinely).
 STREAM_GAP_S = 1.0
-#: A GNSS gap: no usable fix for longer than max(GNSS_GAP_MIN_S, GNSS_GAP_FACTOR x median interval).
+#: A GNSS gap: no usable fix for longer than max(GNSS_GAP_MIN_S, GNSS_GAP_FACTOR x the stream's local interval), the
+#: local interval being the larger median of the GNSS_GAP_LOCAL intervals before and after it: a telemetry stream
+#: whose rate the ground station changes (0.4 Hz before it sets stream rates, 1.25 Hz after) has no gap at its slow
+#: rate, and a fix missing at either rate is still one.
 GNSS_GAP_MIN_S = 1.0
 GNSS_GAP_FACTOR = 3.0
+GNSS_GAP_LOCAL = 10
 
 
 @dataclass(frozen=True)
@@ -33,29 +38,57 @@ class Gap:
 RATE_WINDOW = 20_000
 
 
+class _Candidate:
+    """An interval longer than ``keep_over_s``, with the stream's intervals around it."""
+
+    __slots__ = ("start_s", "end_s", "before", "after", "rows_without_fix")
+
+    def __init__(self, start_s: float, end_s: float, before: list[float]) -> None:
+        self.start_s, self.end_s, self.before, self.after = start_s, end_s, before, []
+        self.rows_without_fix = 0  # GNSS messages in it that had no position (a receiver without a fix)
+
+    def local_interval_s(self) -> float | None:
+        """The larger of the median intervals before and after (what there is of them)."""
+        meds = [float(np.median(x)) for x in (self.before, self.after) if x]
+        return max(meds) if meds else None
+
+
 class _Intervals:
     """Arrival statistics of one stream in bounded memory: count, first/last time, recent intervals,
-    and every interval longer than ``keep_over_s`` (the gap candidates)."""
+    and every interval longer than ``keep_over_s`` (the gap candidates) with the ``local`` intervals on each side."""
 
-    def __init__(self, keep_over_s: float) -> None:
+    def __init__(self, keep_over_s: float, local: int = GNSS_GAP_LOCAL) -> None:
         self.count = 0
         self.first_s: float | None = None
         self.last_s: float | None = None
         self.recent: deque[float] = deque(maxlen=RATE_WINDOW)
         self.keep_over_s = keep_over_s
-        self.long: list[tuple[float, float]] = []
+        self.local = local
+        self.long: list[_Candidate] = []
+        self._open: list[_Candidate] = []  # candidates still collecting the intervals after them
 
-    def add(self, t_s: float) -> None:
+    def add(self, t_s: float) -> _Candidate | None:
+        """Count one arrival; returns the gap candidate it closes, if any."""
+        new = None
         if self.last_s is not None:
             dt = t_s - self.last_s
             if dt > 0:
-                self.recent.append(dt)
+                for c in self._open:
+                    c.after.append(dt)
+                self._open = [c for c in self._open if len(c.after) < self.local]
             if dt > self.keep_over_s:
-                self.long.append((self.last_s, t_s))
+                before = list(islice(reversed(self.recent), self.local))
+                c = new = _Candidate(self.last_s, t_s, before)
+                self.long.append(c)
+                if self.local:
+                    self._open.append(c)
+            if dt > 0:
+                self.recent.append(dt)
         else:
             self.first_s = t_s
         self.count += 1
         self.last_s = t_s if self.last_s is None else max(self.last_s, t_s)
+        return new
 
     def rate_hz(self) -> float | None:
         return float(1.0 / np.median(np.fromiter(self.recent, float))) if self.recent else None
@@ -69,6 +102,7 @@ class StreamStats:
     reboots: int = 0
     _fixes: _Intervals = field(default_factory=lambda: _Intervals(GNSS_GAP_MIN_S))
     _gnss_rows: int = 0
+    _rows_without_fix: int = 0  # primary GNSS messages without a position since the last fix
     _imu: dict[int, _Intervals] = field(default_factory=lambda: defaultdict(lambda: _Intervals(float("inf"))))
     _stream_gaps: list[Gap] = field(default_factory=list)
 
@@ -82,7 +116,12 @@ class StreamStats:
             if ev.instance == 0:
                 self._gnss_rows += 1
                 if ev.has_position:
-                    self._fixes.add(ev.t_s)
+                    gap = self._fixes.add(ev.t_s)
+                    if gap is not None:
+                        gap.rows_without_fix = self._rows_without_fix
+                    self._rows_without_fix = 0
+                else:
+                    self._rows_without_fix += 1
         else:
             self.counts[name] += 1
             if isinstance(ev, Reboot):
@@ -121,9 +160,13 @@ class StreamStats:
         gaps = []
         if fx.first_s - self.first_s > limit:
             gaps.append(Gap("gnss", self.first_s, fx.first_s, "no fix yet at the start"))
-        for a, b in fx.long:
-            if b - a > limit:
-                gaps.append(Gap("gnss", a, b, "no usable fix received"))
+        for c in fx.long:
+            local = c.local_interval_s()
+            here = max(GNSS_GAP_MIN_S, GNSS_GAP_FACTOR * local) if local else limit
+            if c.end_s - c.start_s > here:
+                note = (f"no fix ({c.rows_without_fix} rows without position)" if c.rows_without_fix
+                        else "no GNSS message (valid fixes around)")
+                gaps.append(Gap("gnss", c.start_s, c.end_s, note))
         if self.last_s - fx.last_s > limit:
             gaps.append(Gap("gnss", fx.last_s, self.last_s, "fix lost until the end of the stream"))
         return gaps
@@ -181,7 +224,7 @@ class StreamStats:
         gaps = self.gaps()
         lines.append(f"gaps         {len(gaps)}")
         for g in gaps:
-            lines.append(f"  {g.kind:<6} {g.start_s:9.3f} .. {g.end_s:9.3f} s  ({g.duration_s:6.1f} s)  {g.note}")
+            lines.append(f"  {g.kind:<6}{g.start_s:9.3f} ..{g.end_s:9.3f} s ({g.duration_s:5.1f} s) {g.note}")
         for w in self.warnings():
             lines.append(f"warning: {w}")
         return "\n".join(lines)

@@ -326,6 +326,8 @@ def _apply_overrides(cfg: NavigatorConfig, overrides: list[str]) -> NavigatorCon
 
 
 def main(argv: list[str] | None = None) -> int:
+    from replay.gap_filling_plots import example, plot_rmse
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--logs-dir", type=Path, default=SHARED_LOGS)
     ap.add_argument("--lengths", type=float, nargs="+", default=list(LENGTHS_S))
@@ -338,6 +340,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--plots", type=Path, default=None, help="directory for PNG plots")
     ap.add_argument("--no-stream-gaps", dest="stream_gaps", action="store_false", help="skip the stream-gap scenarios")
     ap.add_argument("--logs", nargs="+", default=None, metavar="SUBSTRING", help="only logs whose name contains one")
+    ap.add_argument("--example-only", action="store_true",
+                    help="only redraw the 8 s blockage example into --plots (two navigator runs; no tables)")
     args = ap.parse_args(argv)
     from tqdm import tqdm
 
@@ -360,6 +364,11 @@ def main(argv: list[str] | None = None) -> int:
             continue
         logs.append(log)
 
+    if args.example_only:
+        if not args.plots:
+            ap.error("--example-only needs --plots DIR")
+        example(args.plots, [lg for lg in logs if lg.imu_rate_hz >= cfg.min_imu_rate_hz], dec, cfg)
+        return 0
     md: list[str] = []
     # ---- throughput
     md += ["## Replay speed with the full filter (one core, `nice -n 10`)", "",
@@ -518,80 +527,9 @@ def main(argv: list[str] | None = None) -> int:
         args.out.write_text(f"# GNSS gap filling benchmark\n\nCommand (repository root):\n\n    {cmd}\n\n"
                             + NOTES + "\n" + text + "\n")
     if args.plots:
-        _plot(args.plots, pooled, args.lengths)
-        ex = [lg for lg in logs if modes.get(lg.name) == "ins"]
-        if ex:
-            lg = max(ex, key=lambda x: x.duration_s)
-            wins = choose_windows(lg, 8.0, 0.0)
-            if wins:
-                _plot_example(args.plots / "gap_filling_example_8s.png", lg, wins[len(wins) // 2], dec, cfg)
+        plot_rmse(args.plots, pooled, args.lengths)
+        example(args.plots, [lg for lg in logs if modes.get(lg.name) == "ins"], dec, cfg)
     return 0
-
-
-def _plot_example(path: Path, log: LogData, window: tuple[float, float], dec, cfg: NavigatorConfig) -> None:
-    """North/east track of one 8 s blockage: truth fixes and every method."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    a, b = window
-    keep = decimate_mask(log.fix_t, dec) & ~_in_windows(log.fix_t, [window])
-    events = _drop_fixes(log.events, set(log.fix_t[~keep].tolist()))
-    full = run_navigator(events, cfg)
-    no_pred = dataclasses.replace(cfg, fuse_predictor=False)
-    alone = run_navigator(withhold_aiding(events, [window]), no_pred)
-    tq = np.arange(a, b, 0.1)
-    m = (log.fix_t >= a - 3) & (log.fix_t < b + 2)
-    avail = keep
-    fig, ax = plt.subplots(figsize=(6.5, 6))
-    ax.plot(log.fix_ned[m, 1], log.fix_ned[m, 0], "k.", ms=4, label="GNSS fixes (truth inside the blockage)")
-    ax.plot(hold_last_fix(log.fix_t[avail], log.fix_ned[avail], tq)[:, 1],
-            hold_last_fix(log.fix_t[avail], log.fix_ned[avail], tq)[:, 0], "s", ms=6, label="hold last fix")
-    cv = constant_velocity(log.fix_t[avail], log.fix_ned[avail], log.fix_vel[avail], tq)
-    ax.plot(cv[:, 1], cv[:, 0], "-", label="constant velocity")
-    pt, pn = _series(full, log.frame, PredictorPoint)
-    sel = (pt >= a) & (pt < b)
-    ax.plot(pn[sel, 1], pn[sel, 0], "-", label="KNN predictor")
-    at, an = _series(alone, log.frame, FusedState)
-    sel = (at >= a) & (at < b)
-    ax.plot(an[sel, 1], an[sel, 0], "-", label="INS alone")
-    ft, fn = _series(full, log.frame, FusedState)
-    sel = (ft >= a - 3) & (ft < b + 2)
-    ax.plot(fn[sel, 1], fn[sel, 0], "-", lw=2.5, label="KNN + INS + Kalman")
-    ax.set_xlabel("east (m)")
-    ax.set_ylabel("north (m)")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title(f"{log.name[:40]}\n8 s blockage at t = {a:.1f} s (GNSS {dec or 'native'} Hz)", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
-def _plot(outdir: Path, pooled, lengths) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    outdir.mkdir(parents=True, exist_ok=True)
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    for m in METHODS:
-        xs = [L for L in lengths if L in pooled and m in pooled[L]]
-        ys = [stats(np.concatenate(pooled[L][m]))["h_rmse"] for L in xs]
-        if xs:
-            ax.plot(xs, ys, "o-", label=METHOD_LABEL[m].strip("*"), lw=2.5 if m == "knn_ins_kf" else 1.2)
-    ax.set_xlabel("GNSS blockage length (s)")
-    ax.set_ylabel("horizontal RMSE (m)")
-    ax.set_yscale("log")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title("Gap filling on the shared ArduCopter logs (INS mode, pooled)")
-    fig.tight_layout()
-    fig.savefig(outdir / "gap_filling_rmse.png", dpi=120)
-    plt.close(fig)
 
 
 if __name__ == "__main__":

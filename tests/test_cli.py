@@ -230,11 +230,51 @@ def test_terminal_labels_and_help(capsys):
     short = _short_label(name, 22)
     assert len(short) == 22 and short.startswith("replay ac") and short.endswith(".bin")
     assert _short_label("navigator", 12) == "navigator"
+    from companion.cli import _stage_label, _stage_metadata
+
+    class GravityMatchStage:  # noqa: D401 - a stand-in stage
+        def metadata(self):
+            return {"unset": None, "printed_none": "None", "empty": "", "count": 0}
+
+    assert _stage_label(GravityMatchStage()) == "gravitymatch"  # fits the 12-column field whole
+    assert _stage_metadata(GravityMatchStage()) == {"count": "0"}  # no value prints None
     text = build_parser().format_help()
     assert "``" not in text and "exit codes" in text and "130" in text
     with pytest.raises(SystemExit):
         build_parser().parse_args(["inspect", "--help"])
-    assert "an .mcap record" in capsys.readouterr().out
+    inspect_help = capsys.readouterr().out
+    assert "an .mcap record" in inspect_help and "  2 " in inspect_help and "  3 " not in inspect_help
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["replay", "--help"])
+    replay_help = capsys.readouterr().out
+    assert "  3    the log was truncated" in replay_help and "--duration" not in replay_help.split("exit codes:")[1]
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["run", "--help"])
+    assert "SIGTERM (systemd stop)" in capsys.readouterr().out.split("exit codes:")[1]
+
+
+@pytest.mark.parametrize("columns", [80, 100, 60])
+def test_progress_bar_fits_the_terminal_with_a_long_log_name(columns):
+    from tqdm import tqdm
+
+    from companion.cli import _bar_label
+
+    desc = _bar_label("replay ac33dev_erle-pxf_quad_2014-11-06_GPS_issues1_inflight-gps-loss.bin", columns)
+    line = tqdm.format_meter(509_000, 593_000, 6.5, ncols=columns, prefix=desc, unit="B", unit_scale=True)
+    bar = line.split("|")[1]
+    assert len(line) <= columns and len(bar) >= 10, line  # the bar is drawn and nothing is cut ...
+    assert line.rstrip().endswith("B/s]") and "<00:01" in line, line  # ... ETA and rate included
+
+
+def test_summary_lines_wrap_to_the_terminal(monkeypatch):
+    from companion.cli import _summary_line
+
+    monkeypatch.setenv("COLUMNS", "80")
+    text = _summary_line("navigator", "mode_reason: IMU0 slower than the 20 Hz strapdown mechanisation needs: "
+                                      "kinematic constant-velocity model")
+    lines = text.splitlines()
+    assert len(lines) == 2 and all(len(x) <= 80 for x in lines)
+    assert lines[1].startswith(" " * 13) and lines[1][13] != " "  # under the text, not under the label
 
 
 def test_collect_benchmarks_help_writes_nothing():
@@ -244,6 +284,15 @@ def test_collect_benchmarks_help_writes_nothing():
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0 and "usage:" in proc.stdout
     assert (bench.read_bytes() if bench.exists() else None) == before
+
+
+def test_errors_under_journald_have_the_error_priority(tmp_path):
+    import os
+
+    env = {**os.environ, "JOURNAL_STREAM": "8:1234"}
+    res = subprocess.run([sys.executable, "-m", "companion.cli", "replay", str(tmp_path / "missing.tlog")],
+                         capture_output=True, text=True, timeout=120, env=env, cwd=REPO)
+    assert res.returncode == 2 and res.stderr.startswith("<3>companion: error: "), res.stderr
 
 
 def test_logging_under_journald_has_priorities_and_no_timestamps(monkeypatch):

@@ -287,7 +287,7 @@ class GravityMatchStage(Stage):
         acc = self.acceptance
         return {"matcher": self.matcher_name, "readings_fed": str(self.n_fed), "fixes": str(self.n_fixes),
                 "failed": str(self.n_failed), "rejected": str(self.n_rejected), "sigma_floor_m": f"{self.sigma_floor_m:g}",
-                "cell_m": f"{self.cell_m:g}", "feed_spacing_m": str(self.feed_spacing_m), "placement": where,
+                "cell_m": f"{self.cell_m:g}", "feed_spacing_m": "every reading" if self.feed_spacing_m is None else f"{self.feed_spacing_m:g}", "placement": where,
                 "navigator_prior": str(self.navigator_prior),
                 "acceptance": (f"min_track_cells={acc.min_track_cells:g} min_signal_ratio={acc.min_signal_ratio:g}"
                                if acc else "none")}

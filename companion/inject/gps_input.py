@@ -49,7 +49,8 @@ from dataclasses import dataclass, replace
 from typing import Any, ClassVar
 
 from companion import units
-from companion.constants import CHI2_2DOF_999, GPS_EPOCH_UNIX_S, GPS_LEAP_S, UERE_M, WEEK_S, receiver_sigma
+from companion.constants import CHI2_2DOF_999, GPS_EPOCH_UNIX_S, UERE_M, WEEK_S, receiver_sigma
+from companion.gpstime import split_gps_s
 from companion.nav.outputs import FusedState
 from companion.events import Attitude, Event, FixType, GnssFix, Heartbeat, ImuSample, Reboot, SystemTime
 from companion.mavlink.gps_input import (  # noqa: F401 - the wire encoding, re-exported for the injector's users
@@ -468,7 +469,7 @@ class Injector(Stage):
         week = week_ms = 0
         if self._gnss_time is not None:
             t0, wk, tow = self._gnss_time
-            week, week_ms = gps_week_from_unix(GPS_EPOCH_UNIX_S - GPS_LEAP_S + wk * WEEK_S + tow + (s.t_s - t0))
+            week, week_ms = split_gps_s(wk * WEEK_S + tow + (s.t_s - t0))  # the receiver's own GPS time
         elif self._utc is not None:
             week, week_ms = gps_week_from_unix(self._utc.unix_time_s + (s.t_s - self._utc.t_s))
         if not 0 <= week <= MAX_GPS_WEEK:

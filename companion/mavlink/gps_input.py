@@ -1,12 +1,12 @@
 """GPS_INPUT (common.xml, message 232) on the wire: the record the injector builds -> the pymavlink message and back,
-GPS time of week, and the ignore flags, all from the dialect (companion.mavlink.dialect)."""
+GPS time of week (:func:`companion.gpstime.gps_week_from_unix`), and the ignore flags, all from the dialect (companion.mavlink.dialect)."""
 
 from __future__ import annotations
 
 from typing import Any
 
 from companion import units
-from companion.constants import GPS_EPOCH_UNIX_S, GPS_LEAP_S, WEEK_S
+from companion.gpstime import gps_week_from_unix
 from companion.mavlink.dialect import mavlink
 
 IGNORE_ALT = mavlink.GPS_INPUT_IGNORE_FLAG_ALT
@@ -17,16 +17,6 @@ IGNORE_VEL_VERT = mavlink.GPS_INPUT_IGNORE_FLAG_VEL_VERT
 IGNORE_SPEED_ACCURACY = mavlink.GPS_INPUT_IGNORE_FLAG_SPEED_ACCURACY
 IGNORE_HORIZONTAL_ACCURACY = mavlink.GPS_INPUT_IGNORE_FLAG_HORIZONTAL_ACCURACY
 IGNORE_VERTICAL_ACCURACY = mavlink.GPS_INPUT_IGNORE_FLAG_VERTICAL_ACCURACY
-
-
-def gps_week_from_unix(unix_s: float) -> tuple[int, int]:
-    """(GPS week, milliseconds of week) for a UTC Unix time."""
-    gps_s = unix_s - GPS_EPOCH_UNIX_S + GPS_LEAP_S
-    week = int(gps_s // WEEK_S)
-    ms = int(round((gps_s - week * WEEK_S) * 1000.0))
-    if ms >= WEEK_S * 1000:
-        week, ms = week + 1, ms - WEEK_S * 1000
-    return week, ms
 
 
 def encode_gps_input(rec):

@@ -102,9 +102,10 @@ class Transport:
 
 
 class UdpTransport(Transport):
-    """``udpin``: bind and answer whoever sent last. ``udpout``: send to a fixed address."""
+    """``udpin``: bind and answer whoever sent last. ``udpout``: send to a fixed address. ``udpbcast``: send to a
+    broadcast address until the first datagram arrives, then only to its sender (pymavlink's mavudp broadcast)."""
 
-    def __init__(self, host: str, port: int, listen: bool) -> None:
+    def __init__(self, host: str, port: int, listen: bool, broadcast: bool = False) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
@@ -114,7 +115,10 @@ class UdpTransport(Transport):
             self.peer = None
         else:
             self.peer = (host, port)
+            if broadcast:
+                self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
         self.listen = listen
+        self.broadcast = broadcast and not listen  # True until the first datagram names the peer
 
     def recv(self, timeout_s: float) -> bytes:
         r, _, _ = select.select([self.sock], [], [], timeout_s)
@@ -135,6 +139,8 @@ class UdpTransport(Transport):
                 age_s = _stamp_age_s(anc)  # the oldest datagram of the read
             if self.listen:
                 self.peer = addr
+            elif self.broadcast:
+                self.peer, self.broadcast = addr, False  # the vehicle answered: talk to it alone from now on
             chunks.append(data)
             size += len(data)
         self.last_age_s = age_s or 0.0
@@ -273,6 +279,6 @@ def open_transport(spec: LinkSpec) -> Transport:
     if spec.kind == "serial":
         return SerialTransport(spec.url, spec.baud or 115200)
     scheme, host, port = spec.url.split(":")
-    if scheme in ("udpin", "udpout"):
-        return UdpTransport(host, int(port), listen=scheme == "udpin")
+    if scheme in ("udpin", "udpout", "udpbcast"):
+        return UdpTransport(host, int(port), listen=scheme == "udpin", broadcast=scheme == "udpbcast")
     return TcpTransport(host, int(port), listen=scheme == "tcpin")

@@ -43,15 +43,17 @@ class Modes:
                 reason = f"IMU{c.imu_index} stream stopped for > {c.imu_timeout_s:g} s: kinematic constant-velocity model"
         elif rate < c.min_imu_rate_hz:
             key = "low_rate"
+            # no rate in the text: the summary's IMU rate line is the one measure of the stream's rate (this window's
+            # count is in ModeChange.imu_rate_hz, at the time of the decision)
             reason = (
-                f"IMU{c.imu_index} rate {rate:.1f} Hz < {c.min_imu_rate_hz:g} Hz needed for strapdown "
-                "mechanisation: kinematic constant-velocity model"
+                f"IMU{c.imu_index} slower than the {c.min_imu_rate_hz:g} Hz strapdown mechanisation needs: "
+                "kinematic constant-velocity model"
             )
         elif self._att is None:
             key = "no_attitude"
             reason = "no attitude source to initialise the INS: kinematic constant-velocity model"
         else:
             self._ins_init(t, z, vel)
-            self._set_mode(t, "ins", f"strapdown INS on IMU{c.imu_index} at {rate:.0f} Hz + error-state KF", "ins")
+            self._set_mode(t, "ins", f"strapdown INS on IMU{c.imu_index} + error-state KF", "ins")
             return
         self._set_mode(t, "kinematic", reason, key)

@@ -109,8 +109,9 @@ class Pipeline:
                 self._run_stages(outs, i + 1)
 
 
-#: Outputs that also go to Foxglove's Map panel, one LocationFix track each.
-_MAP_TRACKS = {"FusedState": "/map/fused", "PredictorPoint": "/map/predictor"}
+#: Outputs that also go to Foxglove's Map panel, one LocationFix track each (GPS_INPUT: what went, or in shadow mode
+#: would go, to the autopilot).
+_MAP_TRACKS = {"FusedState": "/map/fused", "PredictorPoint": "/map/predictor", "GpsInputRecord": "/map/gps_input"}
 
 
 def _finite(*vals: float) -> bool:
@@ -120,6 +121,8 @@ def _finite(*vals: float) -> bool:
 def _cov_enu(item: Any) -> list[list[float]] | None:
     """Diagonal ENU covariance from an output's horizontal/vertical sigmas (NED position variances)."""
     h, v = getattr(item, "sigma_h_m", None), getattr(item, "sigma_v_m", None)
+    if h is None:  # a GPS_INPUT: the accuracies it reports
+        h, v = getattr(item, "h_acc_m", None), getattr(item, "v_acc_m", None)
     if not _finite(h, v):
         return None
     return [[h * h, 0.0, 0.0], [0.0, h * h, 0.0], [0.0, 0.0, v * v]]

@@ -14,67 +14,24 @@ its record is in UTC from the first message on. A live run learns it on the way;
 that (link events before the first vehicle message, or a vehicle without GPS time yet) get the host's
 UTC clock, marked in the ``clock`` metadata record, instead of all being stamped 0.
 
-Leap seconds come from the IANA tz database's ``leap-seconds.list`` (Debian package ``tzdata``, kept
-up to date by the OS), read at import; a built-in table (to the 2017-01-01 leap second) serves when
-that file is absent. astropy (with its IERS tables) would also know them but is a large dependency
-that wants to download its tables at run time; the tz database is already on every Debian machine.
+Leap seconds: :mod:`companion.gpstime` (the tz database's list, kept up to date by the OS).
 """
 
 from __future__ import annotations
 
-import bisect
-import calendar
+import logging
 import math
 import time
 from pathlib import Path
 from typing import Any
 
-from companion.constants import GPS_EPOCH_UNIX_S, WEEK_S
+from companion.gpstime import LEAP_SOURCE, gps_minus_utc_s, gps_to_unix_s
 
-LEAP_SECONDS_FILE = Path("/usr/share/zoneinfo/leap-seconds.list")
-_NTP_TO_UNIX_S = 2208988800  # 1900-01-01 -> 1970-01-01
-_TAI_MINUS_GPS_S = 19
+_log = logging.getLogger(__name__)
+#: a host clock further than this from the vehicle's UTC is worth a warning (its early stamps are off by that much)
+HOST_CLOCK_TOLERANCE_S = 2.0
 
-#: (UTC date, GPS - UTC in s from then on): the leap seconds since the GPS epoch.
-_BUILTIN = [
-    ((1981, 7, 1), 1), ((1982, 7, 1), 2), ((1983, 7, 1), 3), ((1985, 7, 1), 4), ((1988, 1, 1), 5),
-    ((1990, 1, 1), 6), ((1991, 1, 1), 7), ((1992, 7, 1), 8), ((1993, 7, 1), 9), ((1994, 7, 1), 10),
-    ((1996, 1, 1), 11), ((1997, 7, 1), 12), ((1999, 1, 1), 13), ((2006, 1, 1), 14), ((2009, 1, 1), 15),
-    ((2012, 7, 1), 16), ((2015, 7, 1), 17), ((2017, 1, 1), 18),
-]
-
-
-def _load_table(path: Path = LEAP_SECONDS_FILE) -> tuple[list[int], list[int], str]:
-    """(Unix times of the steps, GPS - UTC from each step, where the table came from)."""
-    try:
-        rows = []
-        for line in path.read_text(encoding="ascii").splitlines():
-            parts = line.split("#", 1)[0].split()
-            if len(parts) >= 2:
-                rows.append((int(parts[0]) - _NTP_TO_UNIX_S, int(parts[1]) - _TAI_MINUS_GPS_S))
-        rows = [(t, n) for t, n in rows if n > 0]
-        if rows:
-            return [t for t, _ in rows], [n for _, n in rows], str(path)
-    except (OSError, ValueError):
-        pass
-    steps = [calendar.timegm((y, m, d, 0, 0, 0)) for (y, m, d), _ in _BUILTIN]
-    return steps, [n for _, n in _BUILTIN], "built-in table (to 2017-01-01)"
-
-
-_STEPS, _LEAPS, LEAP_SOURCE = _load_table()
-
-
-def gps_minus_utc_s(unix_s: float) -> int:
-    """Leap seconds between GPS time and UTC at a UTC instant (0 before 1981-07-01)."""
-    i = bisect.bisect_right(_STEPS, unix_s)
-    return _LEAPS[i - 1] if i else 0
-
-
-def gps_to_unix_s(week: int, tow_s: float) -> float:
-    """UTC Unix time of a GPS week and time of week."""
-    gps_as_unix = GPS_EPOCH_UNIX_S + week * WEEK_S + tow_s
-    return gps_as_unix - gps_minus_utc_s(gps_as_unix - gps_minus_utc_s(gps_as_unix))
-
+__all__ = ["RecordClock", "find_utc_offset", "gps_minus_utc_s", "gps_to_unix_s", "utc_of", "LEAP_SOURCE"]
 
 def utc_of(item: Any) -> tuple[float, str] | None:
     """(Unix time at ``item.t_s``, how it is known) for an event that tells the vehicle's UTC, else None."""
@@ -86,6 +43,12 @@ def utc_of(item: Any) -> tuple[float, str] | None:
     if type(item).__name__ == "SystemTime" and unix is not None and math.isfinite(unix) and unix > 0:
         return float(unix), "SYSTEM_TIME"
     return None
+
+
+def _unix_ns(unix_s: float) -> int:
+    """A UTC time in ns at the microsecond its sources give (SYSTEM_TIME: us, GPS time of week: ms): a float of
+    ~1.7e9 s holds only ~0.2 us, so ``round(unix_s * 1e9)`` would put 2025-03-15T01:30:00 at 01:29:59.999999936."""
+    return round(unix_s * 1e6) * 1000
 
 
 class RecordClock:
@@ -102,6 +65,7 @@ class RecordClock:
         self.host_fallback = host_fallback
         self.before_utc = 0  # messages stamped before the UTC was known
         self.first_utc_t_s: float | None = None if offset_ns is None else -math.inf
+        self.host_minus_vehicle_s: float | None = None  # host clock - vehicle UTC when the latter became known (live)
 
     def observe(self, item: Any) -> None:
         if self.offset_ns is not None:
@@ -109,8 +73,16 @@ class RecordClock:
         got = utc_of(item)
         if got is not None:
             unix_s, self.source = got
-            self.offset_ns = round(unix_s * 1e9) - round(item.t_s * 1e9)
+            self.offset_ns = _unix_ns(unix_s) - round(item.t_s * 1e9)
             self.first_utc_t_s = item.t_s
+            if self.host_fallback:
+                # what the messages stamped before now are off by (arrival latency aside): a host without a synced
+                # clock (no RTC, no network) puts them far from the rest of the record
+                self.host_minus_vehicle_s = time.time() - unix_s
+                if self.before_utc and abs(self.host_minus_vehicle_s) > HOST_CLOCK_TOLERANCE_S:
+                    _log.warning("the host clock is %.0f s off the vehicle's UTC (%s): the %d messages recorded before "
+                                 "it was known carry the host's time", self.host_minus_vehicle_s, self.source,
+                                 self.before_utc)
 
     def log_ns(self, t_ns: int) -> int:
         if self.offset_ns is not None:
@@ -132,6 +104,8 @@ class RecordClock:
             if self.before_utc:
                 meta["before_utc"] = (f"{self.before_utc} earlier messages stamped "
                                       + ("with the host UTC clock" if self.host_fallback else "with boot time"))
+            if self.host_minus_vehicle_s is not None:
+                meta["host_clock_minus_vehicle_utc_s"] = f"{self.host_minus_vehicle_s:.3f}"
         meta["payload_time"] = "t_s: vehicle time in s since autopilot boot (running on through reboots)"
         meta["leap_seconds"] = LEAP_SOURCE
         return meta
@@ -142,7 +116,7 @@ async def _first_utc(source) -> tuple[int, str] | None:
         async for ev in source:
             got = utc_of(ev)
             if got is not None:
-                return round(got[0] * 1e9) - round(ev.t_s * 1e9), got[1]
+                return _unix_ns(got[0]) - round(ev.t_s * 1e9), got[1]
     finally:
         await source.aclose()
     return None

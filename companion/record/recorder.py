@@ -4,8 +4,9 @@ Time: a message's log_time and publish_time are the vehicle time ``t_s`` of what
 nanoseconds (``round(t_s * 1e9)``), plus the UTC offset once a :class:`~companion.record.clock.RecordClock`
 knows it (UTC, Unix epoch ns: see that module); the payloads keep ``t_s``. A ``clock`` metadata record
 says which clock the log times are on. Payloads are
-``json.dumps(d, separators=(",", ":"), allow_nan=False)`` of the dataclass's ``to_dict()``, so the same
-input gives byte-identical payloads (and, with the same software versions, a byte-identical file).
+``json.dumps(d, separators=(",", ":"), allow_nan=False)`` of the dataclass's ``to_dict()`` with every unknown
+value (None, NaN) left out (:func:`companion.record.schemas.drop_unknown`), so the same input gives
+byte-identical payloads (and, with the same software versions, a byte-identical file).
 
 Durability. A killed process (SIGKILL, OOM, power cut after the OS wrote its cache) loses only the chunk
 in progress:
@@ -36,7 +37,6 @@ import json
 import math
 import operator
 import os
-import sys
 from collections.abc import Mapping, Sequence
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -46,6 +46,7 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 import companion
 from companion.events import Event
+from companion.logsetup import stderr_line
 from companion.record.clock import RecordClock
 from companion.record.inspect import RecordError
 from companion.record.schemas import (
@@ -56,9 +57,9 @@ from companion.record.schemas import (
     JSON_SCHEMA_ENCODING,
     LOCATION_FIX_SCHEMA,
     LOCATION_FIX_SCHEMA_NAME,
-    NULL_STYLES,
     _plain,
     dataclass_schema,
+    drop_unknown,
     schema_name,
 )
 
@@ -68,11 +69,8 @@ _MESSAGE_OVERHEAD = 1 + 8 + 2 + 4 + 8 + 8  # opcode, record length, channel, seq
 
 
 def _dumps(d: Any) -> bytes:
-    try:
-        return json.dumps(d, separators=(",", ":"), allow_nan=False).encode()
-    except (ValueError, TypeError):
-        # NaN/inf or numpy values that to_dict() did not convert: make them plain JSON, then retry.
-        return json.dumps(_plain(d), separators=(",", ":"), allow_nan=False).encode()
+    """The payload of a plain value: NaN/inf and numpy values made plain JSON, unknown values left out."""
+    return json.dumps(drop_unknown(_plain(d)), separators=(",", ":"), allow_nan=False).encode()
 
 
 def _time_ns(t_s: Any) -> int:
@@ -150,8 +148,6 @@ class Recorder:
     :param clock: log times in UTC once known (:class:`~companion.record.clock.RecordClock`); None: boot time.
     :param live_view: also publish every message (same topic, schema, bytes and log time) to this
         :class:`~companion.record.live_view.LiveView` (Foxglove WebSocket server).
-    :param null_style: how derived schemas say "may be null": only "jsonschema" (standard ``[X, "null"]``
-        type lists), see :mod:`companion.record.schemas`.
     :param raise_errors: a write error (full disk, removed drive) raises OSError naming the file, once (a replay,
         whose product is the record). By default (the live companion) it stops the recording instead: one line on
         stderr naming the file, every later message dropped and counted, nothing raised -- also when the file
@@ -167,7 +163,6 @@ class Recorder:
         flush_interval_s: float = 1.0,
         compression: str = "zstd",
         fsync: bool = False,
-        null_style: str = "jsonschema",
         clock: RecordClock | None = None,
         live_view: Any = None,
         raise_errors: bool = False,
@@ -175,8 +170,6 @@ class Recorder:
     ):
         if compression not in _COMPRESSION:
             raise ValueError(f"compression must be one of {sorted(_COMPRESSION)}, not {compression!r}")
-        if null_style not in NULL_STYLES:
-            raise ValueError(f"null_style must be one of {NULL_STYLES}, not {null_style!r}")
         if chunk_size <= 0 or not flush_interval_s > 0:
             raise ValueError("chunk_size and flush_interval_s must be positive")
         self.path = Path(path)
@@ -198,7 +191,6 @@ class Recorder:
         self._chunk_size = int(chunk_size)
         self._interval_ns = max(1, round(flush_interval_s * 1e9))
         self._fsync = fsync
-        self._null_style = null_style
         self.clock = clock
         self.live_view = live_view  # companion.record.live_view.LiveView: gets every message written
         self._chunk_bytes = 0
@@ -243,10 +235,12 @@ class Recorder:
             self.clock.observe(item)
         if fast is not None:
             # Field values straight to json: same bytes as to_dict() (tuples -> arrays, IntEnum -> int),
-            # without a per-field Python loop. NaN/inf or a value json cannot take -> the exact to_dict() path.
+            # without a per-field Python loop. NaN/inf, None or a value json cannot take -> the to_dict() path.
             try:
                 data = json.dumps(dict(zip(fast[0], fast[1](item))), separators=(",", ":"), allow_nan=False).encode()
             except (ValueError, TypeError):
+                data = None
+            if data is None or b"null" in data:  # an unknown value to leave out (or "null" inside a string)
                 data = _dumps(to_json(item))
         else:
             data = _dumps(to_json(item))
@@ -412,8 +406,8 @@ class Recorder:
         if self._raise:
             raise self.write_error from err
         if self._announce:
-            print(f"companion: error: recording stopped, cannot write {self.path}: {why} "
-                  f"(navigation and injection go on; {self.path} is not finalised)", file=sys.stderr, flush=True)
+            stderr_line(f"companion: error: recording stopped, cannot write {self.path}: {why} "
+                        f"(navigation and injection go on; {self.path} is not finalised)")
 
     def _add(self, channel_id: int, t_ns: int, data: bytes) -> None:
         if self.write_error is not None:  # the live view (Foxglove) goes on without the file
@@ -485,7 +479,7 @@ class Recorder:
 
     def _register_dataclass(self, cls: type, topic: str | None) -> tuple[int, Any, Any]:
         self._check_open()
-        schema = dataclass_schema(cls, self._null_style)  # raises TypeError for non-dataclasses
+        schema = dataclass_schema(cls)  # raises TypeError for non-dataclasses
         if "t_s" not in schema["properties"]:
             raise TypeError(f"{cls.__qualname__} has no t_s field: cannot give its messages a log time")
         resolved = topic if topic is not None else getattr(cls, "topic", None)

@@ -9,7 +9,9 @@ and the messages of its time span. Metadata added after the start goes to every 
 Disk budget (``max_total_bytes``): a segment is also cut once it reaches a quarter of the budget, and before a
 new one starts the oldest segments are deleted until the finished ones left take at most half of it, so the
 record (finished segments, the one being written and its summary section) stays under the budget. Only
-segments this recorder wrote itself are ever deleted, never another file.
+segments this recorder wrote itself are ever deleted, and the ``earlier`` records it is given (a service's
+earlier runs in its record directory): those count in the budget and go first, oldest first, also at the start,
+so a service restarted day after day keeps its directory under the budget too.
 
 A write error stops the segment as in :class:`~companion.record.recorder.Recorder` (one line naming it, nothing
 raised); a new segment is tried after :data:`RETRY_MIN_S` of message time, the wait doubling up to
@@ -33,7 +35,7 @@ RETRY_MAX_S = 600.0
 
 class RotatingRecorder:
     def __init__(self, path: str | os.PathLike, *, segment_s: float = 0.0, max_total_bytes: int = 0,
-                 **recorder_kw: Any) -> None:
+                 earlier: list[Path] | tuple[Path, ...] = (), **recorder_kw: Any) -> None:
         if not segment_s >= 0 or not max_total_bytes >= 0 or not (segment_s > 0 or max_total_bytes > 0):
             raise ValueError("segment_s and max_total_bytes must be >= 0, one of them > 0")
         base = Path(path)
@@ -53,6 +55,11 @@ class RotatingRecorder:
         self._retry_s = RETRY_MIN_S
         self._retry_at: float | None = None  # message time of the next new segment tried after a write error
         self.write_errors: list[OSError] = []  # every write error that stopped a segment
+        #: earlier records in the budget, oldest first (deleted before any segment of this run)
+        self._earlier = [Path(q) for q in earlier] if self.max_total_bytes else []
+        for q in self._earlier:
+            self._sizes[q] = _size(q)
+        self._keep_budget()
         self._rec = self._open()
 
     def _open(self, announce_errors: bool = True) -> Recorder:
@@ -130,11 +137,28 @@ class RotatingRecorder:
         self._sizes.pop(old, None)
 
     def _keep_budget(self) -> None:
-        """Delete the oldest finished segments until those left take at most half the budget."""
+        """Delete the oldest finished segments (earlier records first) until those left take at most half the budget."""
         if not self.max_total_bytes:
             return
-        while self.paths and sum(self._sizes.get(p, 0) for p in self.paths) > self.max_total_bytes // 2:
-            self._delete(self.paths[0])
+        while self._earlier or self.paths:
+            if sum(self._sizes.get(p, 0) for p in self._earlier + self.paths) <= self.max_total_bytes // 2:
+                return
+            if self._earlier:
+                self._delete_earlier(self._earlier.pop(0))
+            else:
+                self._delete(self.paths[0])
+
+    def _delete_earlier(self, old: Path) -> None:
+        try:
+            old.unlink()
+        except FileNotFoundError:
+            pass
+        except OSError as err:
+            _logger.warning("record budget: cannot delete %s: %s", old, err.strerror or err)
+        else:
+            _logger.info("record budget: deleted the earlier record %s (%d bytes)", old, self._sizes.get(old, 0))
+            self.deleted.append(old)
+        self._sizes.pop(old, None)
 
     def _fold_counts(self) -> None:
         for topic, n in self._rec.counts.items():

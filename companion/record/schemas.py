@@ -6,27 +6,27 @@ from its dataclass fields and type hints and cached:
 ====================================  ==========================================================
 field type                            JSON schema
 ====================================  ==========================================================
-``float``                             ``{"type": ["number", "null"]}`` (NaN/inf -> null)
+``float``                             ``{"type": "number"}``, not required (NaN/inf: left out)
 ``int`` / ``IntEnum``                 ``{"type": "integer"}``
 ``bool``                              ``{"type": "boolean"}``
 ``str``                               ``{"type": "string"}``
-``X | None``                          schema of X with ``"null"`` added to its type
+``X | None``                          schema of X, not required (None: left out)
 ``tuple[float, float, float]``        array of numbers with minItems = maxItems = 3
 ``tuple[float, ...]``, ``list[X]``    array of X
 ``dict[str, X]``                      object (no fixed properties) whose values are X
 nested dataclass                      object (recursively)
 ====================================  ==========================================================
 
-Payloads are what the class's ``to_dict()`` (companion.events.Event) or :func:`to_jsonable` make of an
-instance, so NaN/inf become ``null``.
-
-Null. NaN/inf and ``None`` are recorded as ``null``, so a float or ``X | None`` field says so in standard
-JSON Schema: ``"type": ["number", "null"]`` (``[X, "null"]``). Every payload validates against its
-embedded schema with a standard validator (Python ``jsonschema``, draft 2020-12). The earlier
-``"nullable": true`` (an OpenAPI keyword) is gone: validators ignore it, so they rejected every null.
-Foxglove's Map panel reads only the ``foxglove.LocationFix`` topics, whose schema has no type lists;
-the open-source Foxglove/Lichtblick JSON-schema reader (``parseJsonSchema`` in mcap-support) switches
-on a single ``type`` string, so it lists the other topics' fields only where they have one type.
+Unknown values are left out, never ``null``. JSON has no NaN, and a standard validator (Python
+``jsonschema``) accepts ``null`` only where the schema's ``type`` lists ``"null"``; Foxglove's JSON-schema
+reader accepts only a single ``type`` string per field (``parseJsonSchema`` in mcap-support, the code
+Foxglove Studio opened and Lichtblick continues: a type list throws "Unsupported type", and the player
+drops the whole topic with "Error in topic ..."). So a payload leaves out a ``None`` or non-finite value
+(a field that may be unknown is not ``required``), and an array that holds one is left out whole. Every
+payload then validates against its embedded schema with ``jsonschema`` (draft 2020-12), and every schema
+has the shape Foxglove reads (``tests/record/test_record.py::assert_foxglove_parsable``). Checked once with that
+reader itself (Lichtblick's parseJsonSchema.ts at 9554e1e, compiled with tsc, run with node over the schemas of
+replayed real logs): 9 of 9 and 13 of 13 accepted; the type-list schemas before were 1 of 9 (LocationFix only).
 """
 
 from __future__ import annotations
@@ -44,40 +44,37 @@ JSON_MESSAGE_ENCODING = "json"
 
 LOCATION_FIX_SCHEMA_NAME = "foxglove.LocationFix"
 
-NULL_STYLES = ("jsonschema",)
-
-
 def schema_name(cls: type) -> str:
     """MCAP schema name of a dataclass: its module-qualified class name."""
     return f"{cls.__module__}.{cls.__qualname__}"
 
 
 @lru_cache(maxsize=None)
-def dataclass_schema(cls: type, null_style: str = "jsonschema") -> dict:
-    """JSON schema of a dataclass's payload; cached per (class, null_style). Do not mutate the result.
+def dataclass_schema(cls: type) -> dict:
+    """JSON schema of a dataclass's payload; cached per class. Do not mutate the result.
 
     Raises TypeError for a non-dataclass or for a field type with no JSON mapping.
     """
-    if null_style not in NULL_STYLES:
-        raise ValueError(f"null_style must be one of {NULL_STYLES}, not {null_style!r}")
     if not (isinstance(cls, type) and dataclasses.is_dataclass(cls)):
         raise TypeError(f"{cls!r} is not a dataclass type")
     try:
         hints = typing.get_type_hints(cls)
     except Exception as exc:  # unresolvable forward reference
         raise TypeError(f"cannot resolve the type hints of {cls.__qualname__}: {exc}") from exc
-    strict = null_style == "jsonschema"
     props: dict[str, Any] = {}
+    required: list[str] = []
     for f in dataclasses.fields(cls):
         try:
-            props[f.name] = _type_schema(hints[f.name], strict)
+            props[f.name] = _type_schema(hints[f.name])
         except TypeError as exc:
             raise TypeError(f"{cls.__qualname__}.{f.name}: {exc}") from None
+        if f.name == "t_s" or not _may_be_unknown(hints[f.name]):  # the recorder refuses a non-finite t_s
+            required.append(f.name)
     schema: dict[str, Any] = {
         "title": schema_name(cls),
         "type": "object",
         "properties": props,
-        "required": list(props),
+        "required": required,
         "additionalProperties": False,
     }
     doc = (cls.__doc__ or "").strip()
@@ -86,19 +83,26 @@ def dataclass_schema(cls: type, null_style: str = "jsonschema") -> dict:
     return schema
 
 
-def _type_schema(tp: Any, strict: bool) -> dict:
+def _may_be_unknown(tp: Any) -> bool:
+    """A field whose value may be left out of a payload: ``X | None``, a float (NaN/inf), or an array of floats."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin is Union or origin is types.UnionType:
+        return True
+    if tp is float:
+        return True
+    if origin in (tuple, list):
+        return any(_may_be_unknown(a) for a in args if a is not Ellipsis)
+    return False
+
+
+def _type_schema(tp: Any) -> dict:
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
     if origin is Union or origin is types.UnionType:
         non_null = [a for a in args if a is not type(None)]
         if len(non_null) != 1:
             raise TypeError(f"unsupported union {tp!r}: only `X | None` is recorded")
-        inner = dict(_type_schema(non_null[0], strict))
-        if len(non_null) < len(args):  # Optional
-            t = inner["type"]
-            t = list(t) if isinstance(t, list) else [t]
-            inner["type"] = t if "null" in t else t + ["null"]
-        return inner
+        return dict(_type_schema(non_null[0]))  # None: the field is left out of the payload
     if tp is bool:
         return {"type": "boolean"}
     if isinstance(tp, type) and issubclass(tp, Enum):
@@ -108,26 +112,25 @@ def _type_schema(tp: Any, strict: bool) -> dict:
     if tp is int:
         return {"type": "integer"}
     if tp is float:
-        # NaN/inf are recorded as null, so every float may be null
-        return {"type": ["number", "null"]}
+        return {"type": "number"}  # NaN/inf: the field is left out of the payload
     if tp is str:
         return {"type": "string"}
     if origin is tuple:
         if len(args) == 2 and args[1] is Ellipsis:
-            return {"type": "array", "items": _type_schema(args[0], strict)}
+            return {"type": "array", "items": _type_schema(args[0])}
         if args and all(a == args[0] for a in args):
             n = len(args)
-            return {"type": "array", "items": _type_schema(args[0], strict), "minItems": n, "maxItems": n}
+            return {"type": "array", "items": _type_schema(args[0]), "minItems": n, "maxItems": n}
         raise TypeError(f"unsupported tuple {tp!r}: items must all have one type (else use a nested dataclass)")
     if origin is list:
         if not args:
             raise TypeError(f"unsupported bare list {tp!r}: give the item type")
-        return {"type": "array", "items": _type_schema(args[0], strict)}
+        return {"type": "array", "items": _type_schema(args[0])}
     if origin is dict:
         if not args or args[0] is not str:
             raise TypeError(f"unsupported dict {tp!r}: keys must be str")
         # "properties": {} so readers that walk properties (Foxglove) accept the field
-        return {"type": "object", "properties": {}, "additionalProperties": _type_schema(args[1], strict)}
+        return {"type": "object", "properties": {}, "additionalProperties": _type_schema(args[1])}
     if isinstance(tp, type) and dataclasses.is_dataclass(tp):
         nested = dict(dataclass_schema(tp))
         nested.pop("description", None)
@@ -171,13 +174,40 @@ def _plain(v: Any) -> Any:
     raise TypeError(f"cannot record a value of type {type(v).__name__}: {v!r}")
 
 
+_UNKNOWN = object()
+
+
+def drop_unknown(value: Any) -> Any:
+    """A plain JSON value (:func:`to_jsonable`) as recorded: every ``None`` left out -- a dict's key whose value is
+    None, and an array holding one as a whole (see the module doc). A top-level None gives None."""
+    out = _drop(value)
+    return None if out is _UNKNOWN else out
+
+
+def _drop(v: Any) -> Any:
+    if isinstance(v, dict):
+        out = {}
+        for k, x in v.items():
+            x = _drop(x)
+            if x is not _UNKNOWN:
+                out[k] = x
+        return out
+    if isinstance(v, list):
+        items = [_drop(x) for x in v]
+        return _UNKNOWN if any(x is _UNKNOWN for x in items) else items
+    return _UNKNOWN if v is None else v
+
+
 def _number(description: str) -> dict:
     return {"type": "number", "description": description}
 
 
 #: Foxglove's ``foxglove.LocationFix`` JSON schema (foxglove/foxglove-sdk, schemas/jsonschema/LocationFix.json),
 #: the message the Map panel draws. ``position_covariance`` is ENU (East, North, Up), m^2, row-major,
-#: as in ROS sensor_msgs/NavSatFix.
+#: as in ROS sensor_msgs/NavSatFix. A copy, kept because Foxglove ships its JSON schemas on npm only: the
+#: foxglove-sdk Python package has LocationFix as protobuf, and a protobuf message in the record would be the one
+#: topic ``jsonschema`` cannot validate and ``companion inspect`` cannot read without protobuf.
+#: tests/record/test_location_fix.py checks this copy field by field against the SDK's schema.
 LOCATION_FIX_SCHEMA: dict = {
     "title": LOCATION_FIX_SCHEMA_NAME,
     "description": "A navigation satellite fix for any Global Navigation Satellite System",

@@ -84,17 +84,32 @@ def plot_flight(flight: SimulatedFlight, path: Path) -> None:
     ax2.legend(loc="best", fontsize=8)
     ax3 = fig.add_subplot(2, 2, 4, sharex=ax2)
     err = g.pos_error_ned_m
-    ax3.plot(g.t_s[fix], np.hypot(err[fix, 0], err[fix, 1]), "-", color="tab:blue", lw=1, label="horizontal")
-    ax3.plot(g.t_s[fix], err[fix, 2], "-", color="tab:orange", lw=1, label="down")
+    # no line across an outage: NaN where there is no fix (and between fixes further apart than 3 periods)
+    t_err, h_err = _break_gaps(g.t_s, np.where(fix, np.hypot(err[:, 0], err[:, 1]), np.nan))
+    _, d_err = _break_gaps(g.t_s, np.where(fix, err[:, 2], np.nan))
+    ax3.plot(t_err, h_err, "-", color="tab:blue", lw=1, label="horizontal")
+    ax3.plot(t_err, d_err, "-", color="tab:orange", lw=1, label="down")
     ax3.set_ylabel("GNSS error (m)")
     ax3.set_xlabel("boot time (s)")
-    ax3.legend(loc="best", fontsize=8)
     for a in (ax2, ax3):
-        for t0, t1 in out:
-            a.axvspan(t0, t1, color="tab:red", alpha=0.2)
+        for k, (t0, t1) in enumerate(out):
+            a.axvspan(t0, t1, color="tab:red", alpha=0.2, label="GNSS outage" if a is ax3 and k == 0 else None)
+    ax3.legend(loc="best", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+def _break_gaps(t: np.ndarray, y: np.ndarray, factor: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
+    """``t``, ``y`` with a NaN point inserted wherever consecutive times are more than ``factor`` median steps apart,
+    so a plotted line stops at a gap instead of drawing straight across it."""
+    t = np.asarray(t, float)
+    y = np.asarray(y, float)
+    if t.size < 3:
+        return t, y
+    dt = np.diff(t)
+    cut = np.flatnonzero(dt > factor * np.median(dt)) + 1
+    return np.insert(t, cut, t[cut - 1] + dt[cut - 1] / 2), np.insert(y, cut, np.nan)
 
 
 def main(argv: list[str] | None = None) -> int:

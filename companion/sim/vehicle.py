@@ -95,6 +95,7 @@ class VehicleSim:
         record: str | Path | None = None,
         key: bytes | None = None,
         seed: int = 0,
+        idle_exit_s: float = 0.0,
     ) -> None:
         if streams not in ("requested", "all"):
             raise ValueError("streams must be 'requested' or 'all'")
@@ -124,6 +125,9 @@ class VehicleSim:
         self._listen_sock = None
         self._conn = None  # TCP client socket / UDP socket
         self._recent_imu: list[Any] = []
+        #: end once the companion has been heard and then nothing came from it for this long (wall s; 0: never)
+        self.idle_exit_s = idle_exit_s
+        self._last_rx: float | None = None  # monotonic time of the last bytes from the companion
 
     # -- I/O ----------------------------------------------------------------------------------
     def _mav(self, src):
@@ -207,6 +211,8 @@ class VehicleSim:
             s.close()
             self._conn = None
             return
+        if data:
+            self._last_rx = time.monotonic()
         if silent:
             return
         for m in self._rx.parse_buffer(data) or []:
@@ -335,6 +341,8 @@ class VehicleSim:
                     self._log({"event": "link_drop", "play_s": now})
                 elif dropped and not _in(f.link_drop, now):
                     dropped = False
+                    if self._last_rx is not None:
+                        self._last_rx = time.monotonic()  # our own drop: the companion's silence was ours
                     if self.scheme == "tcpin":
                         self._open()
                     self._log({"event": "link_back", "play_s": now})
@@ -356,6 +364,10 @@ class VehicleSim:
                     gnss_logged = True
                     self._log({"event": "gnss_off", "play_s": now})
                 silent = dropped or rebooting
+                if (self.idle_exit_s > 0 and not dropped and self._last_rx is not None
+                        and time.monotonic() - self._last_rx > self.idle_exit_s):
+                    self._log({"event": "idle_exit", "play_s": now, "idle_s": self.idle_exit_s})
+                    break  # the companion went away: nobody to fly for
                 while pending is not None and pending.play_s + loop_offset <= now:
                     it = pending
                     t = it.play_s + loop_offset

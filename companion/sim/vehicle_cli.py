@@ -139,6 +139,7 @@ def run_sim(args) -> int:
     sim = VehicleSim(
         playback, args.listen, faults=faults, speed=args.speed, start_s=args.start, end_s=args.end,
         streams=args.streams, loops=args.loops, record=args.record, key=key, seed=args.seed or 0,
+        idle_exit_s=args.idle_exit,
     )
     signal.signal(signal.SIGTERM, sim.stop)
     signal.signal(signal.SIGINT, sim.stop)

@@ -96,7 +96,7 @@ def plot_tracks(path: Path, lmap: LocalGravityMap, tracks: dict[str, np.ndarray]
     ax.set_ylabel("north (km)")
     ax.set_aspect("equal")
     ax.set_title(title, fontsize=10)
-    ax.legend(fontsize=8, loc="best")
+    ax.legend(fontsize=8, loc="best", facecolor="0.6", framealpha=0.85)  # grey: the white truth line shows in it
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)

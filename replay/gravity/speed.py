@@ -6,6 +6,9 @@ gao-wu: KNN / MSD / ICCP (Gao 2022: R 0.055 deg, step 0.003 deg, window 20, K 17
 area; RPCM / TERCOM on a 512 x 512 map with a 300 x 15 pattern (Wu 2015 sec. 3.1).
 li-liu: RVBMP-2 (n 13, o 7, T 6) per correction (target <= 100 ms); GF-PF step (100 particles, 20 iterations,
 target <= 20 ms), median over repeated calls on the benchmark maps.
+interp: the maps' bilinear interpolation (companion.gravity.maps.bilinear) against the maintained libraries
+(scipy.interpolate.RegularGridInterpolator, xarray.DataArray.interp): CPU time per call and the largest difference
+of the values, on the real AK grid, at the query sizes the matchers and filters use.
 """
 
 from __future__ import annotations
@@ -107,13 +110,54 @@ def li_liu(argv) -> str:
 
 
 
+def interp(argv) -> str:
+    """CPU time per call of the three bilinear interpolations on the AK grid (same points, same values)."""
+    import time
+
+    import xarray as xr
+    from scipy.interpolate import RegularGridInterpolator
+
+    from companion.gravity.data import AK_GULF, shared_gravity_dir
+    from companion.gravity.maps import bilinear, load_grid
+
+    gmap = load_grid(shared_gravity_dir() / AK_GULF)
+    xa, ya, g = gmap.x, gmap.y, gmap.anomaly_mgal
+    rgi = RegularGridInterpolator((ya, xa), g, method="linear", bounds_error=False, fill_value=np.nan)
+    da = xr.DataArray(g, coords={"y": ya, "x": xa}, dims=("y", "x"))
+    rng = np.random.default_rng(5)
+    rows = []
+    for n, use in ((1, "one reading"), (20, "a matcher window"), (1000, "particle filter / Viterbi candidates"),
+                   (100_000, "grid resampling")):
+        x, y = rng.uniform(xa[0], xa[-1], n), rng.uniform(ya[0], ya[-1], n)
+        ours = bilinear(xa, ya, g, x, y)
+        calls = {"ours": lambda: bilinear(xa, ya, g, x, y), "scipy": lambda: rgi(np.column_stack([y, x])),
+                 "xarray": lambda: da.interp(x=xr.DataArray(x, dims="p"), y=xr.DataArray(y, dims="p")).values}
+        diff = max(float(np.nanmax(np.abs(ours - f()))) for k, f in calls.items() if k != "ours")
+        us = {}
+        for k, f in calls.items():
+            reps = max(5, min(2000, 200_000 // n))
+            t0 = time.process_time()
+            for _ in range(reps):
+                f()
+            us[k] = (time.process_time() - t0) / reps * 1e6
+        rows.append([f"{n:,} ({use})", us["ours"], us["scipy"], us["xarray"], f"{us['scipy'] / us['ours']:.2f}",
+                     f"{diff:.1e}"])
+    load = os.getloadavg()[0]
+    return ("## Bilinear interpolation: ours against scipy and xarray (CPU time per call, one process; "
+            f"load average at the end {load:.1f} on {os.cpu_count()} cores)\n\n"
+            f"`nice -n 10 .venv/bin/python -m replay.gravity.speed {' '.join(argv)}` (AK grid {g.shape[0]} x "
+            f"{g.shape[1]}, random points inside it; the values agree to the last column's mGal, NaN outside alike)\n\n"
+            + md_table(["points per call", "ours us", "scipy RegularGridInterpolator us", "xarray interp us",
+                        "scipy / ours", "max |difference| mGal"], rows))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--papers", choices=("gao-wu", "li-liu", "all"), default="all")
+    ap.add_argument("--papers", choices=("gao-wu", "li-liu", "interp", "all"), default="all")
     ap.add_argument("--no-write", action="store_true")
     argv = list(sys.argv[1:] if argv is None else argv)
     a = ap.parse_args(argv)
-    for key, run in (("gao-wu", gao_wu), ("li-liu", li_liu)):
+    for key, run in (("gao-wu", gao_wu), ("li-liu", li_liu), ("interp", interp)):
         if a.papers in (key, "all"):
             text = run([f"--papers {key}"] if a.papers == "all" else argv)
             print(text)

@@ -129,7 +129,7 @@ def main(argv=None) -> int:
                         f"{np.mean(r['h_acc_m'][sel]):.0f}", f"{np.mean(e <= r['h_acc_m'][sel]):.0%}", types,
                         f"{sel.sum()}", f"{(r['t_s'][-1] - cut) / 60:.0f} of {(r['end_s'] - cut) / 60:.0f}"])
     cmd = (f"nice -n 5 .venv/bin/python -m replay.live.long_denial --hours {a.hours:g} --speed-up {a.speed_up:g} "
-           f"--cruise-speed {a.cruise_speed:g} --origin {a.origin} --line-km {a.line_km:g} --spacing-km {a.spacing_km:g} "
+           f"--cruise-speed {a.cruise_speed:g} --origin={a.origin} --line-km {a.line_km:g} --spacing-km {a.spacing_km:g} "
            f"--gnss-off-s {a.gnss_off_s:g} --sigma-mgal {a.sigma_mgal:g} --seed {a.seed} --sensors {a.sensors}"
            + (f" --name {a.name}" if a.name != a.sensors else ""))
     text = "\n".join([
@@ -182,17 +182,28 @@ def main(argv=None) -> int:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(10, 4.5))
+    span_h = 0.0
     for name, r, c in (("INS alone", runs["ins"], "tab:red"), ("gravity-aided", runs["aided"], "tab:blue")):
-        ax.plot((r["t_s"] - cut) / 3600.0, r["err_m"] / 1000.0, color=c, lw=0.8, label=name)
+        x = (r["t_s"] - cut) / 3600.0
+        ax.plot(x, r["err_m"] / 1000.0, color=c, lw=0.8, label=name)
+        if len(x):
+            span_h = max(span_h, float(x[-1] - x[0]))
+            if x[-1] < (r["end_s"] - cut) / 3600.0 - 0.05:  # the injector stopped before the flight's end
+                ax.plot(x[-1], r["err_m"][-1] / 1000.0, "x", color=c, ms=8,
+                        label=f"{name}: last GPS_INPUT, {x[-1] * 60:.0f} min after the cut")
     ax.axvline(0.0, color="k", lw=0.6, ls="--")
     ax.set_xlabel("hours after the GNSS cut")
     ax.set_ylabel("injected position error (km)")
     ax.set_yscale("log")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
-    ax.set_title(f"companion run, live GPS_INPUT: {a.hours:g} h survey at {a.cruise_speed:g} m/s, {a.sensors} sensors")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=8)  # beside the data
+    # the span drawn, from the data: the planned flight is longer when the injector stopped early
+    planned = "" if span_h >= a.hours - 0.05 else f" (of a {a.hours:g} h flight)"
+    ax.set_title(f"companion run, live GPS_INPUT over {span_h:.1f} h{planned}: survey at {a.cruise_speed:g} m/s, "
+                 f"{a.sensors} sensors", fontsize=10)
     fig.tight_layout()
     fig.savefig(RESULTS / f"gravity_live_{a.name}_error.png", dpi=110)
+    plt.close(fig)
     return 0
 
 

@@ -420,7 +420,7 @@ def plot(results: list[core.ArmResult], path: Path) -> None:
     scen = list(dict.fromkeys(r.scenario for r in denied))
     if not scen:
         return
-    fig, axes = plt.subplots(len(scen), 1, figsize=(9, 3.2 * len(scen)), squeeze=False)
+    fig, axes = plt.subplots(len(scen), 1, figsize=(12, 3.2 * len(scen)), squeeze=False)
     for ax, sc in zip(axes[:, 0], scen):
         d = core.SCENARIOS[sc].deny_s
         ax.axvspan(0, d, color="0.9", label=f"GPS1 denied ({d:g} s)")
@@ -451,7 +451,7 @@ def plot(results: list[core.ArmResult], path: Path) -> None:
         ax.set_xlabel("time since GPS1 denied (s)")
         ax.set_ylabel("error (m)")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="upper left", ncol=2)
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)  # beside the data
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -91,9 +91,11 @@ def test_encode_decode_round_trip_through_wire():
 
 
 def test_gps_week_known_dates():
-    assert gps_week_from_unix(315964800 - 18) == (0, 0)  # GPS epoch in UTC before leap seconds
-    # 2017-01-01 00:00:00 UTC: GPS week 1930, Sunday -> tow 18 s (GPS-UTC = 18 s)
+    assert gps_week_from_unix(315964800) == (0, 0)  # the GPS epoch: GPS = UTC then
+    # 2017-01-01 00:00:00 UTC: GPS week 1930, Sunday -> tow 18 s (GPS-UTC = 18 s from that instant)
     assert gps_week_from_unix(calendar.timegm((2017, 1, 1, 0, 0, 0))) == (1930, 18_000)
+    # 2014-11-06 (the Erle log's flight): 16 leap seconds then, not today's 18; Thursday of week 1817
+    assert gps_week_from_unix(calendar.timegm((2014, 11, 6, 12, 0, 0))) == (1817, (4 * 86400 + 12 * 3600 + 16) * 1000)
 
 
 def test_yaw_when_enabled_north_is_36000():

@@ -209,3 +209,49 @@ def test_a_segmented_record_resumes_once_the_disk_has_room(tmp_path, capsys, cap
         assert rec.dropped_after_error == round((resumed_s - t_failed) / 0.01)
     finally:
         subprocess.run(["umount", str(mnt)], capture_output=True)
+
+
+def test_earlier_records_count_in_the_budget_and_go_first(tmp_path):
+    """A service restarted again and again: its record directory stays under the budget, earlier runs' oldest first."""
+    rng = np.random.default_rng(2)
+    earlier = []
+    for k in range(4):  # four earlier runs of 300 kB each: 1.2 MB, over the 1 MB budget already
+        q = tmp_path / f"companion-2026120{k + 1}T000000Z-000.mcap"
+        q.write_bytes(rng.bytes(300_000))
+        earlier.append(q)
+    rec = RotatingRecorder(tmp_path / "companion-20261206T000000Z.mcap", segment_s=30.0, max_total_bytes=BUDGET_BYTES,
+                           earlier=earlier)
+    # at start: down to half the budget (500 kB), oldest first
+    assert [q.exists() for q in earlier] == [False, False, False, True]
+    worst = 0
+    for k in range(30_000):
+        rec.write(_imu(rng, k * 0.02))
+        if k % 500 == 0:
+            worst = max(worst, sum(p.stat().st_size for p in tmp_path.glob("companion-*.mcap")))
+    rec.close()
+    assert worst <= BUDGET_BYTES and not earlier[3].exists()
+    assert rec.deleted[:4] == earlier  # the earlier runs went before any segment of this one
+    assert all(p.exists() for p in rec.paths) and summarize(rec.paths[-1]).finalised
+
+
+def test_run_into_a_directory_keeps_it_under_the_budget(tmp_path):
+    import socket
+    import sys
+
+    rng = np.random.default_rng(3)
+    old = [tmp_path / "companion-20250101T000000Z-000.mcap", tmp_path / "companion-20250102T000000Z.mcap"]
+    for q in old:
+        q.write_bytes(rng.bytes(600_000))
+    mine = tmp_path / "companion-notes.mcap"  # not a name the service writes: never touched
+    mine.write_bytes(b"keep")
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    res = subprocess.run([sys.executable, "-m", "companion.cli", "run", "--connect", f"udpin:127.0.0.1:{port}",
+                          "--out", f"{tmp_path}/", "--duration", "1", "--set", "record.max_total_mb=1"],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr[-600:]
+    assert not old[0].exists() and not old[1].exists()  # 1.2 MB of earlier runs: both over half of 1 MB
+    assert mine.read_bytes() == b"keep"
+    new = sorted(tmp_path.glob("companion-2*-000.mcap"))
+    assert len(new) == 1 and summarize(new[0]).finalised and "2 oldest records deleted" in res.stdout

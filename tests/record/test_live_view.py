@@ -45,7 +45,8 @@ def _wait_for_port(proc, deadline_s: float) -> tuple[int, list[str]]:
     raise AssertionError("no Foxglove server line from companion run: " + "".join(seen))
 
 
-async def _receive_fixes(port: int, topics: set[str], want: int, timeout_s: float) -> list[dict]:
+async def _receive_fixes(port: int, topics: set[str], want_each: int, timeout_s: float) -> list[dict]:
+    """LocationFix messages from the server until every topic in ``topics`` gave ``want_each``."""
     import websockets
 
     async with websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=SUBPROTOCOLS, max_size=None) as ws:
@@ -54,7 +55,7 @@ async def _receive_fixes(port: int, topics: set[str], want: int, timeout_s: floa
         got: list[dict] = []
         loop = asyncio.get_running_loop()
         end = loop.time() + timeout_s
-        while len(got) < want:
+        while any(sum(f["_topic"] == t for f in got) < want_each for t in topics):
             msg = await asyncio.wait_for(ws.recv(), timeout=max(0.1, end - loop.time()))
             if isinstance(msg, str):
                 op = json.loads(msg)
@@ -82,14 +83,16 @@ def test_foxglove_client_receives_live_location_fixes(tmp_path):
     comp = run_companion(sim.port, tmp_path / "c.mcap", "--foxglove", "0", "--duration", 60)
     try:
         port, _ = _wait_for_port(comp, 60)
-        fixes = asyncio.run(_receive_fixes(port, {"/map/fused", "/map/gnss"}, want=20, timeout_s=60))
+        topics = {"/map/fused", "/map/gnss", "/map/gps_input"}  # the fused, GNSS and GPS_INPUT tracks
+        fixes = asyncio.run(_receive_fixes(port, topics, want_each=10, timeout_s=60))
     finally:
         if comp.poll() is None:
             comp.send_signal(signal.SIGTERM)
         out, err = comp.communicate(timeout=60)
         sim.finish()
     assert "Traceback" not in err, err
+    assert {f["_topic"] for f in fixes} == topics, [f["_topic"] for f in fixes]
     for f in fixes:
         assert -90 <= f["latitude"] <= 90 and -180 <= f["longitude"] <= 180 and not (f["latitude"] == 0 == f["longitude"])
         assert len(f["position_covariance"]) == 9
-        assert f["_log_ns"] > 0  # the record's log time (boot time in live records for now)
+        assert f["_log_ns"] > 1_600_000_000 * 10**9  # the record's log time: UTC (the simulator's SYSTEM_TIME or host)

@@ -30,6 +30,7 @@ from companion.record import (
     iter_payloads,
     summarize,
 )
+from companion.record.schemas import drop_unknown
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -86,7 +87,7 @@ def validate(value, schema: dict, where: str = "$") -> None:
         assert value >= schema.get("minimum", -math.inf) and value <= schema.get("maximum", math.inf), where
 
 
-def validate_all(value, schema, strict: bool = True):
+def validate_all(value, schema):
     """Hand check, then the standard validator (``jsonschema``, a test dependency)."""
     import jsonschema
 
@@ -168,9 +169,14 @@ def sample(cls, variant: int = 0, t_s: float = 12.5):
 def test_event_schema_and_payloads(tmp_path, cls):
     schema = dataclass_schema(cls)
     names = [f.name for f in dataclasses.fields(cls)]
-    assert schema["type"] == "object" and schema["required"] == names and list(schema["properties"]) == names
+    hints = typing.get_type_hints(cls)
+    may_be_unknown = {n for n in names if n != "t_s" and (hints[n] is float or type(None) in typing.get_args(hints[n])
+                                                          or float in typing.get_args(hints[n]))}
+    assert schema["type"] == "object" and list(schema["properties"]) == names
+    assert schema["required"] == [n for n in names if n not in may_be_unknown]
     assert schema["title"] == f"companion.events.{cls.__name__}"
     assert dataclass_schema(cls) is schema  # cached per class
+    assert_foxglove_parsable(schema)
     evs = [sample(cls, 0, 1.0), sample(cls, 1, 2.0)]
     with Recorder(tmp_path / "a.mcap") as rec:
         for ev in evs:
@@ -179,10 +185,11 @@ def test_event_schema_and_payloads(tmp_path, cls):
     assert [(t, ns) for t, ns, _ in got] == [(cls.topic, 1_000_000_000), (cls.topic, 2_000_000_000)]
     for ev, (_, _, data) in zip(evs, got):
         payload = json.loads(data)
-        assert payload == json.loads(json.dumps(ev.to_dict()))  # the event's own to_dict(), NaN -> null
-        assert data == json.dumps(ev.to_dict(), separators=(",", ":"), allow_nan=False).encode()
+        # the event's own to_dict() with its unknown values (None, NaN) left out
+        assert payload == drop_unknown(json.loads(json.dumps(ev.to_dict())))
+        assert data == json.dumps(drop_unknown(ev.to_dict()), separators=(",", ":"), allow_nan=False).encode()
+        assert "null" not in data.decode()
         validate_all(payload, schema)
-        validate_all(payload, dataclass_schema(cls, "jsonschema"), strict=True)
     with open(tmp_path / "a.mcap", "rb") as f:
         summary = make_reader(f).get_summary()
     (sch,) = summary.schemas.values()
@@ -193,24 +200,35 @@ def test_event_schema_and_payloads(tmp_path, cls):
 
 def test_schema_type_mapping():
     imu = dataclass_schema(ImuSample)["properties"]
-    num = {"type": ["number", "null"]}  # NaN is recorded as null
+    num = {"type": "number"}  # one type per field: what Foxglove's reader takes; NaN is left out of the payload
     assert imu["accel_frd_mps2"] == {"type": "array", "items": num, "minItems": 3, "maxItems": 3}
     assert imu["imu_index"] == {"type": "integer"} and imu["t_s"] == num
-    gnss = dataclass_schema(GnssFix)["properties"]
-    assert gnss["lat_deg"] == {"type": ["number", "null"]}
-    assert gnss["satellites"] == {"type": ["integer", "null"]} and gnss["fix_type"] == {"type": "integer"}
+    gnss_schema = dataclass_schema(GnssFix)
+    gnss = gnss_schema["properties"]
+    assert gnss["lat_deg"] == num and gnss["satellites"] == {"type": "integer"} and gnss["fix_type"] == {"type": "integer"}
+    assert "lat_deg" not in gnss_schema["required"] and "satellites" not in gnss_schema["required"]
+    assert "fix_type" in gnss_schema["required"] and "t_s" in gnss_schema["required"]
     assert dataclass_schema(StatusText)["properties"]["text"] == {"type": "string"}
     heartbeat = dataclass_schema(next(c for c in EVENT_TYPES if c.__name__ == "Heartbeat"))
     assert heartbeat["properties"]["armed"] == {"type": "boolean"}
-    # standard JSON-schema style: type lists
-    strict_imu = dataclass_schema(ImuSample, "jsonschema")["properties"]
-    assert strict_imu["accel_frd_mps2"]["items"] == {"type": ["number", "null"]}
-    assert strict_imu["imu_index"] == {"type": "integer"}
-    strict_gnss = dataclass_schema(GnssFix, "jsonschema")["properties"]
-    assert strict_gnss["lat_deg"]["type"] == ["number", "null"] and strict_gnss["satellites"]["type"] == ["integer", "null"]
-    assert "nullable" not in json.dumps(dataclass_schema(GnssFix))  # no non-standard keywords
-    with pytest.raises(ValueError, match="null_style"):
-        dataclass_schema(GnssFix, "xml")
+    text = json.dumps(gnss_schema)
+    assert "nullable" not in text and '"null"' not in text  # no non-standard keywords, no type lists
+
+
+def test_unknown_values_are_left_out():
+    assert drop_unknown({"a": 1.0, "b": None, "c": [1.0, None], "d": [1.0, 2.0], "e": {"x": None, "y": "s"}}) == {
+        "a": 1.0, "d": [1.0, 2.0], "e": {"y": "s"}}
+    assert drop_unknown([{"x": None}, {"x": 1}]) == [{}, {"x": 1}] and drop_unknown(None) is None
+    fix = GnssFix(3.0, 1, None, None, None, None, None, None, None, None, 0, None, None, None, None, None, None, None)
+    payload = drop_unknown(fix.to_dict())
+    import jsonschema
+
+    jsonschema.validate(payload, dataclass_schema(GnssFix), cls=jsonschema.Draft202012Validator)
+    with pytest.raises(jsonschema.ValidationError):  # the schema still says what a known value must be
+        jsonschema.validate({**payload, "lat_deg": "north"}, dataclass_schema(GnssFix),
+                            cls=jsonschema.Draft202012Validator)
+    with pytest.raises(jsonschema.ValidationError):  # and null is not a value
+        jsonschema.validate({**payload, "lat_deg": None}, dataclass_schema(GnssFix), cls=jsonschema.Draft202012Validator)
 
 
 @pytest.mark.parametrize("cls", EVENT_TYPES, ids=lambda c: c.__name__)
@@ -246,14 +264,14 @@ class _FilterState:
 
 def test_any_dataclass(tmp_path):
     schema = dataclass_schema(_FilterState)
+    assert_foxglove_parsable(schema)
     assert schema["properties"]["inner"]["type"] == "object"
-    assert schema["properties"]["best"]["type"] == ["object", "null"]
-    assert schema["properties"]["state"] == {"type": "array", "items": {"type": ["number", "null"]}}
-    strict = dataclass_schema(_FilterState, "jsonschema")
-    assert strict["properties"]["best"]["type"] == ["object", "null"]
+    assert schema["properties"]["best"]["type"] == "object" and "best" not in schema["required"]
+    assert schema["properties"]["state"] == {"type": "array", "items": {"type": "number"}}
+    assert schema["required"] == ["t_s", "inner", "gains", "ok"]
     items = [
         _FilterState(0.5, [1.0, math.nan], (0.1, 0.2, 0.3), _Inner(2.0, "a"), None, {"k": 1.0}, True),
-        _FilterState(1.5, [np.float64(3.0)], (), _Inner(math.inf, "b"), _Inner(1.0, "c"), {}, False),
+        _FilterState(1.5, [np.float64(3.0)], (), _Inner(math.inf, "b"), _Inner(1.0, "c"), {"k": math.nan}, False),
     ]
     with Recorder(tmp_path / "s.mcap") as rec:
         for it in items:
@@ -263,9 +281,10 @@ def test_any_dataclass(tmp_path):
     payloads = [json.loads(d) for _, _, d in iter_payloads(tmp_path / "s.mcap")]
     for p in payloads:
         validate_all(p, schema)
-        validate_all(p, strict, strict=True)
-    assert payloads[0]["state"] == [1.0, None] and payloads[0]["inner"] == {"x_m": 2.0, "label": "a"}
-    assert payloads[1]["inner"]["x_m"] is None and payloads[1]["best"] == {"x_m": 1.0, "label": "c"}
+    # an array holding an unknown value is left out whole; None and NaN fields are left out
+    assert "state" not in payloads[0] and "best" not in payloads[0] and payloads[0]["inner"] == {"x_m": 2.0, "label": "a"}
+    assert payloads[1]["inner"] == {"label": "b"} and payloads[1]["best"] == {"x_m": 1.0, "label": "c"}
+    assert payloads[1]["state"] == [3.0] and payloads[1]["gains"] == {}
 
 
 def test_unsupported_types_are_clear_errors(tmp_path):
@@ -296,14 +315,14 @@ def test_unsupported_types_are_clear_errors(tmp_path):
 
 
 def test_write_dict(tmp_path):
-    schema = {"type": "object", "properties": {"n": {"type": "integer"}, "v": {"type": ["number", "null"]}}}
+    schema = {"type": "object", "properties": {"n": {"type": "integer"}, "v": {"type": "number"}}}
     with Recorder(tmp_path / "d.mcap") as rec:
         rec.write_dict("/gps_input", "companion.GpsInputSent", schema, {"n": 1, "v": 2.5}, 3.0)
         rec.write_dict("/gps_input", "companion.GpsInputSent", schema, {"n": 2, "v": math.nan}, 3.2)
         with pytest.raises(ValueError, match="already carries"):
             rec.write_dict("/gps_input", "other.Name", schema, {"n": 3}, 3.3)
     got = list(iter_payloads(tmp_path / "d.mcap"))
-    assert got == [("/gps_input", 3_000_000_000, b'{"n":1,"v":2.5}'), ("/gps_input", 3_200_000_000, b'{"n":2,"v":null}')]
+    assert got == [("/gps_input", 3_000_000_000, b'{"n":1,"v":2.5}'), ("/gps_input", 3_200_000_000, b'{"n":2}')]  # NaN left out
     assert summarize(tmp_path / "d.mcap").topic("/gps_input").schema_name == "companion.GpsInputSent"
 
 

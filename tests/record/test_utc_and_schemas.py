@@ -1,5 +1,6 @@
 """A replayed real log opens with its real UTC date in independent readers; every message validates
-against the JSON schema embedded in the record (standard ``jsonschema``)."""
+against the JSON schema embedded in the record (standard ``jsonschema``), and every schema has the shape
+Foxglove's JSON-schema reader takes (one type per field: see companion.record.schemas)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from mcap.reader import make_reader
 from companion.cli import main
 from companion.record.clock import RecordClock, gps_minus_utc_s, gps_to_unix_s
 from tests.conftest import LOG_ERLE, require
+from tests.record.test_record import assert_foxglove_parsable
 
 
 def test_leap_seconds_by_date():
@@ -35,6 +37,8 @@ def test_clock_before_and_after_utc():
     assert c.metadata()["log_time"].startswith("UTC") and "1 earlier" in c.metadata()["before_utc"]
     live = RecordClock(host_fallback=True)
     assert live.log_ns(0) > 1_600_000_000 * 10**9  # link events before any vehicle time: host UTC, not 0
+    live.observe(SystemTime(t_s=10.0, unix_time_s=1_600_000_000.0))  # a vehicle clock far from the host's
+    assert live.host_minus_vehicle_s > 10**7 and float(live.metadata()["host_clock_minus_vehicle_utc_s"]) > 10**7
 
 
 @pytest.fixture(scope="module")
@@ -67,8 +71,27 @@ def test_every_message_validates_against_its_schema(erle_record):
             if v is None:
                 s = json.loads(schema.data)
                 jsonschema.Draft202012Validator.check_schema(s)
+                assert_foxglove_parsable(s, channel.topic)
                 v = validators[schema.id] = jsonschema.Draft202012Validator(s)
-            errors = list(v.iter_errors(json.loads(message.data)))
+            payload = json.loads(message.data)
+            errors = list(v.iter_errors(payload))
             assert not errors, f"{channel.topic}: {errors[0].message}"
+            assert not _has_null(payload), f"{channel.topic}: a null value (unknowns are left out)"
             n += 1
     assert n > 1000 and len(validators) >= 5
+
+
+def _has_null(v) -> bool:
+    if isinstance(v, dict):
+        return any(_has_null(x) for x in v.values())
+    if isinstance(v, list):
+        return any(_has_null(x) for x in v)
+    return v is None
+
+
+def test_utc_offset_keeps_the_whole_microsecond():
+    from companion.events import SystemTime
+
+    c = RecordClock()
+    c.observe(SystemTime(t_s=0.123, unix_time_s=1_742_002_200.123))  # boot at 2025-03-15T01:30:00Z, to the us
+    assert c.log_ns(0) == 1_742_002_200 * 10**9

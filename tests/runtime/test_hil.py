@@ -11,6 +11,7 @@ import math
 import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 
@@ -217,17 +218,22 @@ def test_live_path_gives_the_replay_payloads(tmp_path):
         capture_output=True, text=True, timeout=120,
     )
     assert rep.returncode == 0, rep.stderr
-    skip = ("/input/heartbeat", "/input/statustext", "/link/", "/inject/")
+    skip = ("/input/heartbeat", "/input/statustext", "/link/", "/inject/", "/map/gps_input")
 
     def payloads(path):
         d: dict[str, list] = {}
-        # compared on the vehicle clock: a replay's log times are UTC (its clock metadata gives the offset)
-        offset = int((summarize(path).metadata_dict("clock") or {}).get("utc_offset_ns", 0))
-        for topic, t_ns, data in iter_payloads(path):
+        # compared on the vehicle clock in the payloads: log times are UTC, and a live run stamps what comes before
+        # the vehicle's first SYSTEM_TIME with the host's UTC clock (a replay looks ahead)
+        for topic, _log_ns, data in iter_payloads(path):
             if not topic.startswith(skip):
-                d.setdefault(topic, []).append((t_ns - offset, data))
+                p = json.loads(data)
+                t_ns = round(p["t_s"] * 1e9) if "t_s" in p else p["timestamp"]["sec"] * 10**9 + p["timestamp"]["nsec"]
+                d.setdefault(topic, []).append((t_ns, data))
         return d
 
+    clocks = [summarize(tmp_path / f).metadata_dict("clock") for f in ("live.mcap", "replay.mcap")]
+    assert all(c["log_time"] == "UTC, Unix epoch ns" for c in clocks), clocks
+    assert clocks[0]["utc_offset_ns"] == clocks[1]["utc_offset_ns"]  # live and replay on the same UTC
     live, replay = payloads(tmp_path / "live.mcap"), payloads(tmp_path / "replay.mcap")
     last_ns = max(t for v in live.values() for t, _ in v)
     cut_ns = last_ns - 3_000_000_000  # the live run stops mid-flight: leave out the navigator's final flush
@@ -240,3 +246,17 @@ def test_live_path_gives_the_replay_payloads(tmp_path):
         assert a == b, topic
         compared += len(a)
     assert compared > 3000 and cut_ns > 50e9
+
+
+def test_simulator_ends_once_the_companion_is_gone(tmp_path):
+    """The README's background `companion sim ... &` ends on its own once `companion run` has exited."""
+    sim = Sim(tmp_path, "--idle-exit", 3)  # the sample flight is 174 s long
+    comp = run_companion(sim.port, tmp_path / "c.mcap", "--duration", 5)
+    _out, err = comp.communicate(timeout=90)
+    assert comp.returncode == 0, err
+    t0 = time.monotonic()
+    sim.proc.wait(timeout=60)  # long before the flight's end
+    waited_s = time.monotonic() - t0
+    recs = sim.finish()
+    idle = [r for r in recs if r["event"] == "idle_exit"]
+    assert idle and idle[0]["play_s"] < 60.0 and waited_s < 60.0

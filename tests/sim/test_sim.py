@@ -326,3 +326,12 @@ def test_project_reader_decodes_sample():
     assert all(SAMPLE_OUTAGE_S[0] <= e.t_s < SAMPLE_OUTAGE_S[1] for e in lost)
     imu_idx = Counter(e.imu_index for e in events if isinstance(e, ImuSample))
     assert set(imu_idx) == {0, 1}
+
+
+def test_plotted_lines_break_at_gaps():
+    from companion.sim.make_sample import _break_gaps
+
+    t = np.array([0.0, 0.1, 0.2, 0.3, 8.5, 8.6, 8.7])
+    tt, yy = _break_gaps(t, t * 2)
+    assert np.isnan(yy).sum() == 1 and np.isnan(yy[4]) and 0.3 < tt[4] < 8.5  # one break, inside the gap
+    assert np.array_equal(tt[~np.isnan(yy)], t)
