@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 import socket
+import tempfile
+from pathlib import Path
 
 import pytest
 
@@ -12,7 +14,11 @@ from tests.conftest import REPO, free_port
 
 
 def _server(tmp_path):
+    # a unix socket path is at most 107 bytes: a nested or parallel pytest's tmp_path can be longer (then: a short
+    # directory of its own under /tmp)
     path = str(tmp_path / "notify.sock")
+    if len(path.encode()) > 100:
+        path = str(Path(tempfile.mkdtemp(prefix="cn-", dir="/tmp")) / "notify.sock")
     srv = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     srv.bind(path)
     srv.settimeout(2.0)
