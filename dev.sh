@@ -48,6 +48,10 @@ cmd=${1:-replay}; shift || true
 case "$cmd" in
   setup) setup ;;
   replay) setup; exec .venv/bin/companion replay "$@" ;;
-  test) setup_test; exec .venv-test/bin/python -m pytest "$@" ;;
+  # two workers (pytest-xdist), a test file per worker: most of the suite's wall time is live processes waiting on
+  # simulated vehicles in real time; COMPANION_TEST_JOBS=0 runs it in one process
+  test) setup_test; jobs=${COMPANION_TEST_JOBS:-2}
+        if [ "$jobs" = 0 ]; then exec .venv-test/bin/python -m pytest "$@"; fi
+        exec .venv-test/bin/python -m pytest -n "$jobs" --dist loadfile "$@" ;;
   *) echo "usage: $0 {replay|test|setup} [args]" >&2; exit 2 ;;
 esac
