@@ -208,9 +208,25 @@ def test_verdicts_compare_the_arms():
                      scripted_flight(lambda t: 2.0 if t < 40 else 2.0 + (t - 40), failsafe_at=45.0))
     v = "\n".join(core.ab_verdicts([a, b]))
     assert "square: mean EKF error B/A = 10.0x" in v and "NOT met" in v
-    assert "failsafe with the companion earlier than alone (+5.0 s vs +10.0 s)" in v
+    assert "failsafe with the companion earlier than alone (+5.00 s vs +10.00 s)" in v
     assert "5 s marks where B > A + 0.5 m" in v
     assert core.marks_table([a, b]).count("\n") == 3
+
+
+def test_verdicts_tolerate_the_resolution_and_the_failsafe_check_period():
+    """A hover's 1-2 cm mean errors differ by less than GLOBAL_POSITION_INT's 1e-7 deg step; failsafes 0.05 s apart are
+    one ArduCopter check period apart: neither is a difference between the arms. A B arm that never fails is reported
+    with its worst 5 s mark against the 3 m target."""
+    a = core.analyse(core.SCENARIOS["square-deny-30"], "A", scripted_flight(lambda t: 0.010, failsafe_at=50.0))
+    b = core.analyse(core.SCENARIOS["square-deny-30"], "B", scripted_flight(lambda t: 0.016, failsafe_at=49.95))
+    v = "\n".join(core.ab_verdicts([a, b]))
+    assert "hover: mean EKF error B/A" in v and "NOT met" not in v and "met (difference below one 1e-7 deg step" in v
+    assert "earlier than alone" not in v
+    b = core.analyse(core.SCENARIOS["square-deny-30"], "B", scripted_flight(lambda t: 0.05 if t < 40 else 2.5))
+    v = "\n".join(core.ab_verdicts([a, b]))
+    assert "no EKF failsafe with the companion" in v and "kept flying" in v and "(target <= 3 m: met)" in v
+    b = core.analyse(core.SCENARIOS["square-deny-30"], "B", scripted_flight(lambda t: 0.05 if t < 40 else 4.0))
+    assert "(target <= 3 m: NOT met)" in "\n".join(core.ab_verdicts([a, b]))
 
 
 def test_scenarios_are_consistent():
