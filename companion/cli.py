@@ -139,10 +139,13 @@ def _print_summary(source, pipeline, out: Path, stopped_by: str | None, elapsed_
 def _build_pipeline(recorder, args):
     from companion.pipeline.core import build_pipeline
 
+    navigator = getattr(args, "navigator", "on") == "on"
     if getattr(args, "gravity_map", None) is None:
         if getattr(args, "deny_gnss_after", None) is not None:
             raise UsageError("--deny-gnss-after needs --gravity-map (the gravity-aided replay)")
-        return build_pipeline(recorder)
+        return build_pipeline(recorder, navigator=navigator)
+    if not navigator:
+        raise UsageError("--gravity-map needs the navigator (not --navigator off)")
     from companion.gravity.maps import LocalGravityMap, MapFormatError, load_grid
     from companion.gravity.stage import FixAcceptance, gravity_replay_pipeline
     from companion.pipeline.denial import GnssDenial
@@ -359,6 +362,8 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FACTOR",
         help="pace the replay at the vehicle's own rate (optionally FACTOR times faster); default: as fast as possible",
     )
+    r.add_argument("--navigator", choices=("on", "off"), default="on",
+                   help="off: ingest and record the log's events only, no KNN predictor / INS / Kalman outputs")
     g = r.add_argument_group("gravity-aided replay (GNSS denied, simulated gravimeter, GPS_INPUT in shadow mode)")
     g.add_argument("--gravity-map", metavar="FILE", help="gravity anomaly grid (netCDF, mGal)")
     g.add_argument("--deny-gnss-after", type=float, metavar="SECONDS",
