@@ -9,20 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-try:  # the LAPACK inverse np.linalg.inv calls, without its wrapper (a third of an update's time): the same bits
-    from numpy.linalg._umath_linalg import inv as _lapack_inv
-except ImportError:  # another numpy layout: its public inv
-    _lapack_inv = None
-
-
-def _inverse(S: np.ndarray) -> np.ndarray:
-    """np.linalg.inv(S): LAPACK's gesv on the identity; a singular S still raises np.linalg.LinAlgError."""
-    if _lapack_inv is not None and S.dtype == np.float64:
-        with np.errstate(all="ignore"):  # (a singular S: no warning here, np.linalg.inv below raises)
-            Si = _lapack_inv(S, signature="d->d")
-        if np.isfinite(Si).all():
-            return Si
-    return np.linalg.inv(S)
+from companion.nav.linalg import inverse
 
 
 class KalmanFilter:
@@ -49,7 +36,7 @@ class KalmanFilter:
         y = z - np.dot(H, self.x)
         PHT = np.dot(self.P, H.T)
         S = np.dot(H, PHT) + R
-        K = np.dot(PHT, _inverse(S))
+        K = np.dot(PHT, inverse(S))
         self.x = self.x + np.dot(K, y)
         I_KH = self._I - np.dot(K, H)
         self.P = np.dot(np.dot(I_KH, self.P), I_KH.T) + np.dot(np.dot(K, R), K.T)
