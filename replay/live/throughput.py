@@ -12,7 +12,8 @@ duration over our CPU time.
 Memory: peak RSS of ``companion replay`` (a child process each) on log171 extended to 5 minutes and to ``--hours``:
 its records repeated with boot and GPS times shifted to run on (:func:`extend_log`, in a temporary directory).
 Start-up: CPU time of ``import companion.cli``, and of ``companion run`` (UDP link, systemd's NOTIFY_SOCKET) up to
-READY=1, median of 5. Profile: cProfile of the replay of log171, the top 10 by own time.
+READY=1, median of 5. Profile: cProfile of the replay of log171, the top 10 by own time. ``--compare-tree DIR``:
+the same replay by another checkout's code, against this one's (before/after a change).
 """
 
 from __future__ import annotations
@@ -245,9 +246,10 @@ def startup_table(n: int = 5) -> str:
 
 
 def profile_table(log: Path, top: int = 10) -> str:
+    _, cpu, _ = companion_replay(log)
     pr = cProfile.Profile(time.process_time)
     pr.enable()
-    _, cpu, _ = companion_replay(log)
+    companion_replay(log)
     pr.disable()
     st = pstats.Stats(pr, stream=io.StringIO())
     total = sum(v[2] for v in st.stats.values())
@@ -256,7 +258,45 @@ def profile_table(log: Path, top: int = 10) -> str:
         where = func if file == "~" else f"{'/'.join(Path(file).parts[-2:])}:{line} {func}"
         rows.append([where, ncalls, f"{tt:.3f}", f"{100 * tt / total:.1f}", f"{ct:.3f}"])
     return md_table(["function", "calls", "own s", "own %", "cumulative s"], rows) + \
-        f"\n\n(under cProfile: {total:.2f} s of own time in all; the replay alone takes {cpu:.2f} s outside it)"
+        f"\n\n(under cProfile, which slows small calls most: {total:.2f} s of own time in all; the same replay without " \
+        f"the profiler: {cpu:.2f} s of CPU)"
+
+
+_CHILD_REPLAY = """
+import asyncio, sys, tempfile, time
+from pathlib import Path
+from companion.pipeline.core import build_pipeline, run_source
+from companion.record import Recorder
+from companion.sources import FileSource
+with tempfile.TemporaryDirectory() as d:
+    t0 = time.process_time()
+    rec = Recorder(Path(d) / "t.mcap")
+    pipe = build_pipeline(rec)
+    asyncio.run(run_source(FileSource(sys.argv[1]), pipe))
+    rec.close()
+    print(time.process_time() - t0, pipe.stats.duration_s)
+"""
+
+
+def _child_replay(tree: Path, log: Path) -> tuple[float, float]:
+    """(CPU s, flight s) of the replay (navigator and record, imports excluded) by the companion of ``tree``."""
+    res = subprocess.run([sys.executable, "-c", _CHILD_REPLAY, str(log)], env=dict(os.environ, PYTHONPATH=str(tree)),
+                         capture_output=True, text=True, cwd=tempfile.gettempdir(), check=True)
+    cpu, dur = res.stdout.split()[-2:]
+    return float(cpu), float(dur)
+
+
+def compare_table(logs: list[Path], other: Path, repeat: int) -> str:
+    """This tree's replay against another checkout's (e.g. the commit before a change), child processes in turn."""
+    here = Path(__file__).resolve().parents[2]
+    rows = []
+    for log in logs:
+        pairs = [(_child_replay(other, log), _child_replay(here, log)) for _ in range(repeat)]
+        b, a = (statistics.median(p[i][0] for p in pairs) for i in (0, 1))
+        dur = pairs[0][1][1]
+        rows.append([log.name[:40], f"{b:.2f}", f"{a:.2f}", f"{statistics.median(x[0] / y[0] for x, y in pairs):.2f}",
+                     f"{dur / b:.0f}", f"{dur / a:.0f}"])
+    return md_table(["log", "other CPU s", "this CPU s", "speed-up", "other x real time", "this x real time"], rows)
 
 
 def main() -> None:
@@ -265,6 +305,9 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--hours", type=float, default=3.0, help="the long replay of the memory table (default 3)")
     ap.add_argument("--skip", nargs="*", default=[], choices=("speed", "memory", "startup", "profile"))
+    ap.add_argument("--compare-tree", type=Path, metavar="DIR",
+                    help="also time the replay of another commit's code (git archive COMMIT | tar -x -C DIR) against this one")
+    ap.add_argument("--compare-rev", default="the other tree", help="the commit in --compare-tree, for the table's title")
     ap.add_argument("--no-write", action="store_true", help="print only; do not write replay/results/ingest.md")
     args = ap.parse_args()
     logs = args.logs or sorted(SHARED_LOGS.glob("*.bin")) + sorted(SHARED_LOGS.glob("*.tlog"))
@@ -287,6 +330,13 @@ def main() -> None:
     if "startup" not in args.skip:
         publish("## Start-up\n\n" + cmd + head + "Target: import + start-up to READY <= 1 s.\n\n" + startup_table(),
                 path, "startup", title, write=not args.no_write)
+    if args.compare_tree is not None:
+        rev, tree = args.compare_rev, args.compare_tree
+        publish(f"## Against commit {rev}\n\n    mkdir -p {tree} && git archive {rev} | tar -x -C {tree}\n"
+                f"    .venv/bin/python -m replay.live.throughput --skip speed memory startup profile --compare-tree {tree} "
+                f"--compare-rev {rev} --repeat {args.repeat}\n\n" + head + "The replay with navigator and record, each commit's code in a child "
+                "process (imports excluded), in turn; CPU s medians, the speed-up the median of the pairs.\n\n" +
+                compare_table(logs, args.compare_tree, args.repeat), path, "compare", title, write=not args.no_write)
     if "profile" not in args.skip:
         publish("## Where the time goes (log171, replay with navigator and record)\n\n" + cmd + head +
                 profile_table(LOG171), path, "profile", title, write=not args.no_write)
