@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from companion.cli import REPLAY_FLUSH_INTERVAL_S
 from companion.pipeline.core import build_pipeline, run_source
 from companion.record import Recorder
 from companion.shared_data import shared_logs_dir
@@ -62,7 +63,7 @@ def companion_replay(path: Path, navigator: bool = True) -> tuple[int, float, fl
     """(events, CPU s, flight duration s) of an in-process replay with the MCAP record."""
     with tempfile.TemporaryDirectory() as d:
         t0 = time.process_time()
-        rec = Recorder(Path(d) / "t.mcap")
+        rec = Recorder(Path(d) / "t.mcap", flush_interval_s=REPLAY_FLUSH_INTERVAL_S)  # as `companion replay`
         pipe = build_pipeline(rec, navigator=navigator)
         asyncio.run(run_source(FileSource(path), pipe))
         rec.close()
