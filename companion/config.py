@@ -304,10 +304,10 @@ def _validate(cfg: Config) -> Config:
 
 
 def _validate_gravity(g: GravityConfig) -> None:
-    from companion.gravity.stage import MATCHERS
-
     if not g.map:
         return
+    from companion.gravity.stage import MATCHERS  # (scipy.signal and .stats: 0.5 s of start-up, only with gravity)
+
     if not Path(g.map).is_file():
         raise ConfigError(f"gravity.map: {g.map} is not a file")
     if g.matcher not in MATCHERS:

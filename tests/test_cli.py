@@ -62,6 +62,17 @@ def test_replay_twice_gives_identical_payloads(tmp_path):
     assert len(pa) > 1000 and pa == pb
 
 
+def test_replay_navigator_off_records_the_inputs_only(tmp_path):
+    out = tmp_path / "off.mcap"
+    res = run_cli("replay", require(LOG_ERLE), "--out", out, "--navigator", "off")
+    assert res.returncode == 0, res.stderr
+    topics = {t.topic: t.count for t in summarize(out).topics}
+    assert topics["/input/imu"] > 5000 and topics["/map/gnss"] > 300
+    assert not [t for t in topics if t.startswith(("/estimation", "/map/fused", "/map/predictor"))]
+    assert run_cli("replay", require(LOG_ERLE), "--out", out, "--navigator", "off", "--gravity-map", "x.nc",
+                   "--deny-gnss-after", "5").returncode == 2
+
+
 def test_default_replay_uses_bundled_sample(tmp_path):
     require(SAMPLE_LOG)
     res = run_cli("replay", cwd=tmp_path)

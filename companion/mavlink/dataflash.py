@@ -1,4 +1,4 @@
-"""ArduPilot dataflash ``.bin`` logs -> events (via pymavlink's DFReader).
+"""ArduPilot dataflash ``.bin`` logs -> events (rows from companion.mavlink.dataflash_stream).
 
 Time bases handled (see companion.timebase):
 - AC 3.1-3.3: ``TimeMS`` = ms since boot on IMU/ATT; on GPS rows ``TimeMS`` is GPS time of week (ms)
@@ -7,13 +7,15 @@ Time bases handled (see companion.timebase):
   fields come in a separate GPA row with the same ``TimeUS`` (merged into one GnssFix here).
 - Instances: AC 3.x/4.0 name them IMU/IMU2/IMU3, GPS/GPS2, GPA/GPA2; AC 4.1+ use one name with ``I``.
 
-DFReader applies the format multipliers, so Lat/Lng arrive in degrees, Alt in metres (MSL), Spd in m/s,
+Rows carry DFReader's values: the format multipliers applied, so Lat/Lng arrive in degrees, Alt in metres (MSL), Spd in m/s,
 GCrs in degrees, VZ in m/s (NED, down positive), Acc* in m/s², Gyr* in rad/s, ATT angles in degrees.
 """
 
 from __future__ import annotations
 
 import math
+
+import numpy as np
 
 from companion.events import Attitude, Event, FixType, GnssFix, ImuSample, StatusText
 from companion.timebase import HOLD_REASONS, VehicleClock
@@ -50,6 +52,37 @@ class DataflashDecoder:
         if t_s is None:
             self._drop(HOLD_REASONS[self.clock.last_hold])
         return t_s
+
+    def decode_block(self, block) -> list[Event]:
+        """The events of a companion.mavlink.dataflash_stream.Block, in file order. IMU rows take a path prepared
+        once per block (the checks of ``_imu`` done on whole columns); every other row goes through ``decode``."""
+        out: list[Event] = []
+        for rows, k in block.order:
+            if rows is None:  # another log starts: a GPS row waiting for its GPA does not wait across logs
+                out += self.flush()
+                continue
+            imu = rows.imu if hasattr(rows, "imu") else _prepare_imu(rows)
+            if imu is None:
+                out += self.decode(_Row(rows.fmt.name, dict(zip(rows.cols, rows.tuples[k]))))
+            else:
+                self._imu_prepared(imu, k, out)
+        return out
+
+    def _imu_prepared(self, imu, k: int, out: list[Event]) -> None:
+        """``decode`` of one IMU row of a prepared block: same checks, same order, same counts."""
+        boot, acc, gyr, inst, status = imu
+        st = status[k]
+        if st == _OUT_OF_RANGE_INSTANCE:
+            self._drop(f"{imu.name} instance out of range")
+            return
+        if self._pending_gps:
+            out += self.flush()
+        if st:
+            self._drop(_IMU_DROPS[st])
+            return
+        t_s = self._time(boot[k], out)
+        if t_s is not None:
+            out.append(ImuSample(t_s=t_s, accel_frd_mps2=acc[k], gyro_frd_radps=gyr[k], imu_index=inst[k]))
 
     def decode(self, msg) -> list[Event]:
         try:
@@ -250,194 +283,65 @@ def _boot_s(d: dict, default: float | None = 0.0) -> float | None:
     return default
 
 
-#: the FMT record that defines FMT itself: the first record of every dataflash log (a second one: logs one after another)
-FMT_OF_FMT = b"\xa3\x95\x80\x80\x59FMT\x00"
+class _Row:
+    """A dataflash row as the decoder reads it (pymavlink's DFMessage interface: get_type, to_dict)."""
+
+    __slots__ = ("name", "d")
+
+    def __init__(self, name: str, d: dict) -> None:
+        self.name, self.d = name, d
+
+    def get_type(self) -> str:
+        return self.name
+
+    def to_dict(self) -> dict:
+        return self.d
 
 
-def log_starts(path: str) -> list[int]:
-    """Byte offsets where a dataflash log starts in the file: [0] for one log, more for logs concatenated."""
-    with open(path, "rb") as f:
-        data = f.read()
-    starts, i = [0], data.find(FMT_OF_FMT, 1)
-    while i > 0:
-        if i - starts[-1] > 2048:  # (a log's own FMT block is contiguous: only a new block far on is a new log)
-            starts.append(i)
-        i = data.find(FMT_OF_FMT, i + 1)
-    return starts
+_NON_FINITE, _BEYOND, _OUT_OF_RANGE_INSTANCE = 1, 2, 3
+_IMU_DROPS = {_NON_FINITE: "IMU non-finite", _BEYOND: "IMU beyond any sensor's range (non-physical)"}
+_INT_CHARS = set("bBhHiIqQM")
+_NUM_CHARS = _INT_CHARS | set("fdgcCeEL")
 
 
-def resync_reader(path: str, window: tuple[int, int] | None = None):
-    """pymavlink's DFReader_binary whose index resynchronises: a record of an unknown type (a bad type byte) or
-    bytes that are no record are skipped up to the next record header, and the rest of the log is read, like
-    pymavlink's own parser skips bad data between records (its indexer stops at the first unknown type and drops
-    everything after it). ``skipped_bytes`` / ``skipped_stretches`` count what was passed over; ``fmt_blocks``
-    how many times the formats were defined from scratch (a second FMT block: logs one after another)."""
-    import struct
+class _PreparedImu(tuple):
+    """(boot_s, accel, gyro, instance, status) per row of one block's IMU rows; ``name`` the message name."""
 
-    from pymavlink import DFReader
-
-    class ResyncDFReader(DFReader.DFReader_binary):
-        def __init__(self, filename, window=None):
-            if window is None:
-                super().__init__(filename, zero_time_base=False)
-                return
-            # one log of several in the file: its bytes alone, so its own FMT records define its formats
-            DFReader.DFReader.__init__(self)
-            self.filehandle = open(filename, "rb")
-            self.filehandle.seek(window[0])
-            self.data_map = self.filehandle.read(window[1] - window[0])
-            self.data_len = len(self.data_map)
-            self.HEAD1, self.HEAD2 = 0xA3, 0x95
-            self.unpackers = {}
-            self.formats = {0x80: DFReader.DFFormat(0x80, "FMT", 89, "BBnNZ", "Type,Length,Name,Format,Columns")}
-            self._zero_time_base = False
-            self.prev_type = None
-            self.init_arrays_fast()
-            self.init_clock()
-            self.prev_type = None
-            self._rewind(keep_messages=True)
-
-        def close(self):
-            if isinstance(self.data_map, bytes):
-                self.filehandle.close()
-                return
-            super().close()
-
-        def init_arrays_fast(self, progress_callback=None):
-            """pymavlink's compiled indexer, and this one when that stopped before the end of the file."""
-            initial = dict(self.formats)
-            with _c_stdout_silenced():  # the compiled indexer printf()s "unknown msg type" to stdout
-                super().init_arrays_fast(progress_callback=progress_callback)
-            self.skipped_bytes = self.skipped_stretches = self.fmt_blocks = 0
-            last_end = max((o[-1] + self.formats[t].len for t, o in enumerate(self.offsets) if o and t in self.formats),
-                           default=0)
-            if self.data_len - last_end > 528:
-                self.formats = initial
-                self.unit_lookup, self.mult_lookup = {}, {}
-                self.init_arrays(progress_callback)
-
-        def init_arrays(self, progress_callback=None):
-            self.skipped_bytes = self.skipped_stretches = 0
-            self.fmt_blocks = 0
-            offsets: list[list[int]] = [[] for _ in range(256)]
-            counts = [0] * 256
-            formats = self.formats
-            self._count = 0
-            self.name_to_id, self.id_to_name = {}, {}
-            fmt_type, special = 0x80, {}
-            data, n = self.data_map, self.data_len
-            h1, h2 = self.HEAD1, self.HEAD2
-            header = bytes((h1, h2))
-            parsed: set[tuple[int, bytes]] = set()
-            unpack_fmt = struct.Struct(formats[fmt_type].msg_struct).unpack
-            ofs, seen_fmt_at = 0, -1
-            while ofs + 3 <= n:
-                if data[ofs] != h1 or data[ofs + 1] != h2 or data[ofs + 2] not in formats:
-                    nxt = data.find(header, ofs + 1)
-                    nxt = n if nxt < 0 else nxt
-                    if n - ofs >= 528 or n < 528:  # (block logs end in up to 528 bytes of padding)
-                        self.skipped_bytes += nxt - ofs
-                        self.skipped_stretches += 1
-                    ofs = nxt
-                    continue
-                mtype = data[ofs + 2]
-                fmt = formats[mtype]
-                mlen = fmt.len
-                if mlen < 3 or ofs + mlen > n:
-                    break  # a record cut short by the end of the file
-                body = data[ofs + 3:ofs + mlen]
-                try:
-                    if mtype == fmt_type:
-                        elements = list(unpack_fmt(body))
-                        ftype = elements[0]
-                        if ftype == fmt_type and seen_fmt_at < 0 or ftype == fmt_type and ofs > seen_fmt_at + mlen:
-                            self.fmt_blocks += 1
-                        if ftype == fmt_type:
-                            seen_fmt_at = ofs
-                        mfmt = DFReader.DFFormat(ftype, DFReader.null_term(elements[2]), elements[1],
-                                                 DFReader.null_term(elements[3]), DFReader.null_term(elements[4]),
-                                                 oldfmt=formats.get(ftype))
-                        formats[ftype] = mfmt
-                        self.name_to_id[mfmt.name] = mfmt.type
-                        self.id_to_name[mfmt.type] = mfmt.name
-                        if mfmt.name in ("FMTU", "UNIT", "MULT"):
-                            special[mfmt.type] = mfmt.name
-                    elif mtype in special:
-                        elements = list(struct.unpack(fmt.msg_struct, body))
-                        kind = special[mtype]
-                        if kind == "UNIT":
-                            self.unit_lookup[chr(elements[1])] = DFReader.null_term(elements[2])
-                        elif kind == "MULT":
-                            self.mult_lookup[chr(elements[1])] = float("%.7g" % elements[2])
-                        elif kind == "FMTU" and int(elements[1]) in formats:
-                            fmt2 = formats[int(elements[1])]
-                            if "UnitIds" in fmt.colhash:
-                                fmt2.set_unit_ids(DFReader.null_term(elements[fmt.colhash["UnitIds"]]), self.unit_lookup)
-                            if "MultIds" in fmt.colhash:
-                                fmt2.set_mult_ids(DFReader.null_term(elements[fmt.colhash["MultIds"]]), self.mult_lookup)
-                except Exception:  # noqa: BLE001 - a corrupt FMT/UNIT/MULT body: that record is bad data
-                    self.skipped_bytes += 1
-                    self.skipped_stretches += 1
-                    ofs += 1
-                    continue
-                offsets[mtype].append(ofs)
-                counts[mtype] += 1
-                key = (mtype, bytes(body[fmt.instance_ofs:fmt.instance_ofs + fmt.instance_len])
-                       if fmt.instance_field is not None else b"")
-                if key not in parsed:  # the first record of each type (and instance) is parsed, as pymavlink does
-                    parsed.add(key)
-                    self.offset = ofs
-                    self.remaining = n - ofs
-                    self._parse_next()
-                ofs += mlen
-            self.offsets, self.counts, self.formats = offsets, counts, formats
-            self._count = sum(counts)
-            self.offset = 0
-
-    DFReader.print = _pymavlink_said  # its own diagnostics would break the one-line error promise: counted instead
-    return ResyncDFReader(path, window)
+    name: str
 
 
-class _c_stdout_silenced:
-    """File descriptors 1 and 2 to /dev/null for a moment (the C-level fprintf of pymavlink's compiled indexer),
-    flushed before they are given back."""
-
-    def __enter__(self):
-        import ctypes
-        import os
-        import sys
-
-        self._libc = ctypes.CDLL(None)
-        for f in (sys.stdout, sys.stderr):
-            try:
-                f.flush()
-            except (OSError, ValueError, AttributeError):
-                pass
-        self._saved = [os.dup(1), os.dup(2)]
-        null = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(null, 1)
-        os.dup2(null, 2)
-        os.close(null)
-        return self
-
-    def __exit__(self, *exc):
-        import os
-
-        self._libc.fflush(None)
-        for fd, saved in zip((1, 2), self._saved):
-            os.dup2(saved, fd)
-            os.close(saved)
-        return False
-
-
-#: what pymavlink's DFReader printed (its "Skipped N bad bytes", "bad header", ... lines), by first word
-PYMAVLINK_SAID: dict[str, int] = {}
-
-
-def _pymavlink_said(*args, **_kw) -> None:
-    text = str(args[0]) if args else ""
-    first = text.split(" ", 1)[0]
-    PYMAVLINK_SAID[first] = PYMAVLINK_SAID.get(first, 0) + 1
-    if text.startswith("Failed to parse "):  # "Failed to parse IMU/<struct> with len ..."
-        key = "Failed " + text[len("Failed to parse "):].split("/", 1)[0]
-        PYMAVLINK_SAID[key] = PYMAVLINK_SAID.get(key, 0) + 1
+def _prepare_imu(rows):
+    """The column-wise checks of ``_imu`` for one format's rows of a block, or None when its columns are not the
+    plain numeric ones (renamed, missing, text): those rows take the row-by-row path. Cached on ``rows``."""
+    fmt, cols = rows.fmt, rows.cols
+    rows.imu = None
+    rows.tuples = None
+    name = fmt.name
+    if not name.startswith("IMU"):
+        rows.tuples = list(zip(*cols.values()))
+        return None
+    chars = dict(zip(fmt.columns, fmt.chars))
+    axes = ("AccX", "AccY", "AccZ", "GyrX", "GyrY", "GyrZ")
+    tcol = "TimeUS" if "TimeUS" in cols else "TimeMS" if "TimeMS" in cols else None
+    icol = "I" if name == "IMU" and "I" in cols else None
+    if (tcol is None or chars.get(tcol) not in _INT_CHARS or any(chars.get(a) not in _NUM_CHARS for a in axes)
+            or icol is not None and chars.get(icol) not in _INT_CHARS):
+        rows.tuples = list(zip(*cols.values()))
+        return None
+    scale = 1e-6 if tcol == "TimeUS" else 1e-3
+    boot = [v * scale for v in cols[tcol]]  # as _num: int * float, the same rounding as one at a time
+    a = np.array([cols[c] for c in axes], dtype=float)
+    with np.errstate(invalid="ignore"):
+        finite = np.isfinite(a).all(axis=0)
+        beyond = (np.abs(a[:3]).max(axis=0) > MAX_ACCEL_MPS2) | (np.abs(a[3:]).max(axis=0) > MAX_GYRO_RADPS)
+    status = np.where(finite, np.where(beyond, _BEYOND, 0), _NON_FINITE)
+    if icol is not None:
+        inst = cols[icol]
+        status = np.where((np.array(inst) >= 0) & (np.array(inst) <= 3), status, _OUT_OF_RANGE_INSTANCE)
+    else:
+        inst = [_INSTANCE.get(name, 0)] * len(boot)
+    prepared = _PreparedImu((boot, list(zip(*(cols[c] for c in axes[:3]))), list(zip(*(cols[c] for c in axes[3:]))),
+                             inst, status.tolist()))
+    prepared.name = name
+    rows.imu = prepared
+    return prepared

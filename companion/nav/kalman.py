@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from companion.nav.linalg import inverse
+
 
 class KalmanFilter:
     """State ``x`` (dim_x x 1) and covariance ``P``; transition and noise given at each step."""
@@ -34,7 +36,7 @@ class KalmanFilter:
         y = z - np.dot(H, self.x)
         PHT = np.dot(self.P, H.T)
         S = np.dot(H, PHT) + R
-        K = np.dot(PHT, np.linalg.inv(S))
+        K = np.dot(PHT, inverse(S))
         self.x = self.x + np.dot(K, y)
         I_KH = self._I - np.dot(K, H)
         self.P = np.dot(np.dot(I_KH, self.P), I_KH.T) + np.dot(np.dot(K, R), K.T)

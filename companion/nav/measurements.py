@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.constants import CHI2_1DOF_999, CHI2_2DOF_999, CHI2_3DOF_999
+from companion.nav.linalg import solve
 
 
 def skew(v) -> np.ndarray:
@@ -34,7 +35,7 @@ class InsView:
 
 def gate(y: np.ndarray, S: np.ndarray, chi2: float) -> tuple[float, bool]:
     """Normalised innovation squared y' S^-1 y and whether it passes the chi-square gate."""
-    nis = float(y @ np.linalg.solve(S, y))
+    nis = float(y @ solve(S, y))
     return nis, nis <= chi2
 
 

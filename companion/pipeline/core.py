@@ -143,16 +143,17 @@ def build_pipeline(
     nav_config: Any = None,
     filters: Iterable[Stage] = (),
     extra_stages: Iterable[Stage] = (),
+    navigator: bool = True,
 ) -> Pipeline:
     """The one pipeline wiring used by replay, the live runtime and the benchmarks.
 
     source events -> filters (e.g. a GNSS denial, companion.pipeline.denial) -> navigator (KNN predictor + INS +
     Kalman integrator, companion.nav) -> extra stages (gravity matching, the GPS_INPUT injector, which consumes
-    the navigator's FusedState, ...) -> sink.
+    the navigator's FusedState, ...) -> sink. ``navigator=False``: no navigator (an ingest-only replay).
     """
     from companion.nav import Navigator
 
-    stages: list[Stage] = [*filters, Navigator(nav_config), *extra_stages]
+    stages: list[Stage] = [*filters, *([Navigator(nav_config)] if navigator else []), *extra_stages]
     return Pipeline(stages=stages, sink=sink)
 
 

@@ -4,9 +4,11 @@ Time: a message's log_time and publish_time are the vehicle time ``t_s`` of what
 nanoseconds (``round(t_s * 1e9)``), plus the UTC offset once a :class:`~companion.record.clock.RecordClock`
 knows it (UTC, Unix epoch ns: see that module); the payloads keep ``t_s``. A ``clock`` metadata record
 says which clock the log times are on. Payloads are
-``json.dumps(d, separators=(",", ":"), allow_nan=False)`` of the dataclass's ``to_dict()`` with every unknown
-value (None, NaN) left out (:func:`companion.record.schemas.drop_unknown`), so the same input gives
-byte-identical payloads (and, with the same software versions, a byte-identical file).
+the compact JSON of the dataclass's ``to_dict()`` with every unknown value (None, NaN) left out
+(:func:`companion.record.schemas.drop_unknown`), encoded by orjson (the standard library's ``json`` for what orjson
+refuses: integers beyond 64 bits), so the same input gives byte-identical payloads (and, with the same software
+versions, a byte-identical file). orjson spells some floats differently from ``json`` (``1e-7`` for ``1e-07``); the
+values are the same (tests/record/test_fast_messages.py).
 
 Durability. A killed process (SIGKILL, OOM, power cut after the OS wrote its cache) loses only the chunk
 in progress:
@@ -35,19 +37,20 @@ from __future__ import annotations
 
 import json
 import math
-import operator
 import os
 from collections.abc import Mapping, Sequence
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
+import orjson
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 import companion
 from companion.events import Event
 from companion.logsetup import stderr_line
 from companion.record.clock import RecordClock
+from companion.record.fast_messages import fast_add_message
 from companion.record.inspect import RecordError
 from companion.record.schemas import (
     COV_DIAGONAL_KNOWN,
@@ -68,9 +71,23 @@ _NEVER = 1 << 62  # Writer chunk_size that never triggers: the recorder decides 
 _MESSAGE_OVERHEAD = 1 + 8 + 2 + 4 + 8 + 8  # opcode, record length, channel, sequence, log/publish time
 
 
+_ORJSON_OPTS = orjson.OPT_SERIALIZE_NUMPY
+
+
 def _dumps(d: Any) -> bytes:
-    """The payload of a plain value: NaN/inf and numpy values made plain JSON, unknown values left out."""
-    return json.dumps(drop_unknown(_plain(d)), separators=(",", ":"), allow_nan=False).encode()
+    """Compact JSON of a plain value, every unknown value (None, NaN/inf) left out; orjson, or the standard library
+    for what orjson refuses (an integer beyond 64 bits, a value of another type)."""
+    try:
+        data = orjson.dumps(d, option=_ORJSON_OPTS)  # NaN/inf -> null, like None
+    except TypeError:  # orjson.JSONEncodeError is a TypeError
+        data = None
+    if data is not None and b"null" not in data:
+        return data
+    plain = drop_unknown(_plain(d))
+    try:
+        return orjson.dumps(plain, option=_ORJSON_OPTS)
+    except TypeError:
+        return json.dumps(plain, separators=(",", ":"), allow_nan=False).encode()
 
 
 def _time_ns(t_s: Any) -> int:
@@ -188,6 +205,8 @@ class Recorder:
             self._failed(err)
         self._writer = Writer(self._file if self._file is not None else _Nowhere(),
                               chunk_size=_NEVER, compression=_COMPRESSION[compression])
+        # the Writer's add_message in one pack and two writes (None: an mcap whose internals differ; its own then)
+        self._add_message = fast_add_message(self._writer) or self._writer.add_message
         self._chunk_size = int(chunk_size)
         self._interval_ns = max(1, round(flush_interval_s * 1e9))
         self._fsync = fsync
@@ -197,7 +216,7 @@ class Recorder:
         self._chunk_t0: int | None = None  # log time of the open chunk's first message
         self._busy = False
         self._close_requested = False
-        # (class, topic) -> (channel id, (field names, getter) or None, to_dict)
+        # (class, topic) -> (channel id, True when the dataclass is encoded as it is (no own to_dict), to_dict)
         self._dc_channels: dict[tuple[type, str | None], tuple[int, Any, Any]] = {}
         self._named_channels: dict[str, int] = {}
         self._schemas: dict[str, tuple[int, bytes]] = {}  # schema name -> (id, schema bytes)
@@ -233,14 +252,15 @@ class Recorder:
         t_ns = _time_ns(item.t_s)
         if self.clock is not None:
             self.clock.observe(item)
-        if fast is not None:
-            # Field values straight to json: same bytes as to_dict() (tuples -> arrays, IntEnum -> int),
-            # without a per-field Python loop. NaN/inf, None or a value json cannot take -> the to_dict() path.
+        if fast:
+            # the dataclass straight to orjson: its fields in order, the same values as to_dict() (tuples -> arrays,
+            # IntEnum -> int). An unknown value to leave out ("null": NaN/inf/None, or "null" inside a string) or a
+            # value orjson refuses -> the to_dict() path.
             try:
-                data = json.dumps(dict(zip(fast[0], fast[1](item))), separators=(",", ":"), allow_nan=False).encode()
-            except (ValueError, TypeError):
+                data = orjson.dumps(item, option=_ORJSON_OPTS)
+            except TypeError:
                 data = None
-            if data is None or b"null" in data:  # an unknown value to leave out (or "null" inside a string)
+            if data is None or b"null" in data:
                 data = _dumps(to_json(item))
         else:
             data = _dumps(to_json(item))
@@ -423,7 +443,7 @@ class Recorder:
             self._seq[channel_id] = seq + 1
             if self.clock is not None:
                 t_ns = self.clock.log_ns(t_ns)
-            self._writer.add_message(channel_id, t_ns, data, t_ns, seq & 0xFFFFFFFF)
+            self._add_message(channel_id, t_ns, data, t_ns, seq & 0xFFFFFFFF)
             if self.live_view is not None:
                 self._publish(channel_id, t_ns, data)
             self._chunk_bytes += _MESSAGE_OVERHEAD + len(data)
@@ -492,9 +512,7 @@ class Recorder:
         else:
             channel_id = self._register_channel(resolved, name, self._register_schema(name, schema))
         to_dict = getattr(cls, "to_dict", None)
-        names = tuple(schema["properties"])
-        generic = to_dict is None or to_dict is Event.to_dict  # a class's own to_dict() is always honoured
-        fast = (names, operator.attrgetter(*names) if len(names) > 1 else _one(names[0])) if generic else None
+        fast = to_dict is None or to_dict is Event.to_dict  # a class's own to_dict() is always honoured
         entry = (channel_id, fast, to_dict if callable(to_dict) else _plain)
         self._dc_channels[(cls, topic)] = entry
         return entry
@@ -506,11 +524,6 @@ class Recorder:
         channel_id = self._register_channel(topic, name, self._register_schema(name, json_schema))
         self._named_channels[topic] = channel_id
         return channel_id
-
-
-def _one(name: str):
-    get = operator.attrgetter(name)
-    return lambda o: (get(o),)
 
 
 def _flatten_cov(cov: Any) -> list[float]:

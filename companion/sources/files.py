@@ -1,6 +1,7 @@
 """Log files as sources: dataflash ``.bin`` and telemetry ``.tlog``, recognised by content, not name.
 
-A synchronous :class:`LogReader` does the parsing (pymavlink) and hands out events in batches, time
+A synchronous :class:`LogReader` does the parsing (dataflash: companion.mavlink.dataflash_stream; tlog: pymavlink)
+and hands out events in batches, time
 ordered through a short reorder buffer; :class:`FileSource` runs it in a worker thread so the asyncio
 loop never blocks. :func:`read_events` is the synchronous whole-file shortcut for tools and tests.
 """
@@ -8,8 +9,6 @@ loop never blocks. :func:`read_events` is the synchronous whole-file shortcut fo
 from __future__ import annotations
 
 import asyncio
-import contextlib
-import io
 import os
 import struct
 from collections.abc import AsyncIterator
@@ -124,114 +123,80 @@ class LogReader:
 
 
 class DataflashReader(LogReader):
+    """A dataflash log read as a stream (companion.mavlink.dataflash_stream): memory bounded whatever its length."""
+
     kind = "dataflash"
 
     def __init__(self, path: str | os.PathLike) -> None:
         super().__init__(path)
-        from companion.mavlink.dataflash import PYMAVLINK_SAID, WANTED, DataflashDecoder, log_starts
+        from companion.mavlink.dataflash import WANTED, DataflashDecoder
+        from companion.mavlink.dataflash_stream import DataflashStream
 
-        self._wanted = WANTED
-        self._said = PYMAVLINK_SAID
-        self._failed_before = {k: v for k, v in PYMAVLINK_SAID.items() if k.startswith("Failed")}
-        # logs one after another in one file: each is read with its own formats, on one vehicle clock (the second's
-        # time going back is a reboot, forward a gap)
-        starts = log_starts(str(self.path))
-        self._segments = [(a, b) for a, b in zip(starts, starts[1:] + [self.size_bytes])]
-        self._base = 0
-        if len(self._segments) > 1:
-            self.info.warnings.append(f"{len(self._segments)} logs one after another (a new FMT block at byte "
-                                      f"{', '.join(str(a) for a, _ in self._segments[1:])}): read in turn")
-        self._open_segment(0)
-        self._decoder = DataflashDecoder()
-
-    def _open_segment(self, k: int) -> None:
-        from companion.mavlink.dataflash import resync_reader
-
-        start, end = self._segments[k]
-        self._segment, self._base = k, start
-        noise = io.StringIO()  # DFReader prints "bad header" lines on stderr; count them instead
-        window = None if len(self._segments) == 1 else (start, end)
         try:
-            with contextlib.redirect_stderr(noise), contextlib.redirect_stdout(noise):
-                self._log = resync_reader(str(self.path), window)
-        except Exception as err:  # pymavlink raises assorted errors on garbage
-            raise SourceError(f"{self.path}: not a readable dataflash log ({err.__class__.__name__}: {err})") from None
-        if not getattr(self._log, "formats", None) or len(self._log.formats) <= 1:
+            self._stream = DataflashStream(self.path, WANTED)
+        except OSError as err:
+            raise SourceError(f"{self.path}: cannot read ({err.strerror})") from None
+        self._decoder = DataflashDecoder()
+        self._pending: list[Event] = []
+        try:  # the formats come first: read on until one is defined (a file without any is no log)
+            while not self._stream.has_formats and not self._stream.done:
+                self._pending += self._decoder.decode_block(self._stream.next_block())
+        except OSError as err:
+            self._stream.close()
+            raise SourceError(f"{self.path}: cannot read ({err.strerror})") from None
+        if not self._stream.has_formats:
+            self._stream.close()
             raise SourceError(f"{self.path}: dataflash log without message formats (FMT); damaged or not a log")
-        bad = noise.getvalue().count("bad header")
-        skipped = getattr(self._log, "skipped_bytes", 0)
-        if skipped:
-            self.info.warnings.append(
-                f"skipped {skipped} bytes in {self._log.skipped_stretches} stretches that are no dataflash records "
-                f"(a bad record header or type); reading went on at the next record")
-        elif bad:
-            self.info.warnings.append(f"skipped {bad} corrupt bytes between records")
-        if k == len(self._segments) - 1:
-            self._check_tail()
-
-    def _check_tail(self) -> None:
-        """Say when the last record is cut short or an unparsable stretch ends the file."""
-        log = self._log
-        formats = log.formats
-        last_start, last_end = 0, 0
-        for mtype, offs in enumerate(getattr(log, "offsets", [])):
-            if offs and mtype in formats and offs[-1] + self._base >= last_start:
-                last_start, last_end = offs[-1] + self._base, offs[-1] + self._base + formats[mtype].len
-        tail = self.size_bytes - last_end
-        if 0 < tail <= 528 and last_end + 3 <= self.size_bytes:
-            with open(self.path, "rb") as f:
-                f.seek(last_end)
-                head = f.read(3)
-            fmt = formats.get(head[2]) if head[:2] == DATAFLASH_MAGIC else None
-            if fmt is not None and fmt.len > tail:
-                last_start, last_end = last_end, last_end + fmt.len
-        elif 0 < tail < 3:
-            last_start, last_end = last_end, last_end + 3
-        if last_end > self.size_bytes:
-            self.info.warnings.append(
-                f"truncated: the last record (at byte {last_start}) needs {last_end - last_start} bytes but the "
-                f"file ends after {self.size_bytes - last_start}"
-            )
-        elif self.size_bytes - last_end > 528:  # DFReader's own allowance for block-log padding
-            self.info.warnings.append(
-                f"the last {self.size_bytes - last_end} bytes (from byte {last_end}) are not dataflash records"
-            )
 
     def offset(self) -> int:
-        return self._base + int(getattr(self._log, "offset", 0))
+        return self._stream.offset
 
     def _next_events(self) -> list[Event] | None:
+        if self._pending:
+            out, self._pending = self._pending, []
+            return out
         try:
-            msg = self._log.recv_match(type=self._wanted)
-        except Exception as err:  # noqa: BLE001 - pymavlink raises assorted errors on corrupt data
+            block = self._stream.next_block()
+        except Exception as err:  # noqa: BLE001 - an I/O error mid-file: keep what was read, say where
             self._parse_failed(err)
             return None
-        if msg is None:
-            if self._segment + 1 < len(self._segments):
-                self._log.close()
-                self._open_segment(self._segment + 1)
-                return self._decoder.flush()  # a GPS row waiting for its GPA does not wait across logs
+        if block is None:
             return None
-        self.messages_read += 1
-        return self._decoder.decode(msg)
+        self.messages_read += len(block.order)
+        return self._decoder.decode_block(block)
 
     def _final_events(self) -> list[Event]:
         evs = self._decoder.flush()
-        failed = {k[len("Failed "):]: n - self._failed_before.get(k, 0) for k, n in self._said.items()
-                  if k.startswith("Failed ") and n > self._failed_before.get(k, 0)}
-        if failed:
-            which = ", ".join(f"{n} {name}" for name, n in sorted(failed.items()))
-            self.info.warnings.append(f"skipped records pymavlink could not parse ({which}): a format that does not "
-                                      "fit its records (a damaged FMT?)")
+        st, warn = self._stream, self.info.warnings
+        if len(st.segment_starts) > 1:
+            warn.insert(0, f"{len(st.segment_starts)} logs one after another (a new FMT block at byte "
+                           f"{', '.join(str(a) for a in st.segment_starts[1:])}): read in turn")
+        if st.skipped_bytes:
+            warn.append(f"skipped {st.skipped_bytes} bytes in {st.skipped_stretches} stretches that are no dataflash "
+                        "records (a bad record header or type); reading went on at the next record")
+        if st.unfit:
+            which = ", ".join(f"{n} {name}" for name, n in sorted(st.unfit.items()))
+            warn.append(f"skipped records that could not be parsed ({which}): a format that does not fit its records "
+                        "(a damaged FMT?)")
+        if st.truncated is not None:
+            at, length = st.truncated
+            warn.append(f"truncated: the last record (at byte {at}) needs {length} bytes but the file ends after "
+                        f"{self.size_bytes - at}")
+        if st.trailing_garbage is not None:
+            at, n = st.trailing_garbage
+            warn.append(f"the last {n} bytes (from byte {at}) are not dataflash records")
         damage = ("without its time or axes", "malformed", "instance out of range")
         for why, n in sorted(self._decoder.dropped.items()):
             if any(d in why for d in damage):
-                self.info.warnings.append(f"skipped {n} rows that do not fit their format: {why}")
+                warn.append(f"skipped {n} rows that do not fit their format: {why}")
         if self._decoder.firmware:
             self.info.details["firmware"] = self._decoder.firmware
         for why, n in sorted(self._decoder.dropped.items()):
-            self.info.warnings.append(f"dropped {n} rows: {why}")
+            warn.append(f"dropped {n} rows: {why}")
         return evs
+
+    def close(self) -> None:
+        self._stream.close()
 
 
 class TlogReader(LogReader):

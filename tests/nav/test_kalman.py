@@ -50,3 +50,10 @@ def test_bit_identical_to_filterpy_over_a_random_run():
 def test_rejects_empty_dimensions():
     with pytest.raises(ValueError):
         KalmanFilter(dim_x=0, dim_z=1)
+
+
+def test_a_singular_innovation_covariance_still_raises():
+    kf = KalmanFilter(dim_x=2, dim_z=2)
+    kf.P = np.zeros((2, 2))
+    with pytest.raises(np.linalg.LinAlgError):
+        kf.update(np.ones((2, 1)), R=np.zeros((2, 2)), H=np.eye(2))
