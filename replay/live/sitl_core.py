@@ -524,6 +524,7 @@ def ab_verdicts(results: list[ArmResult]) -> list[str]:
     """The issue's targets, checked per scenario where both arms ran."""
     by = {(r.scenario, r.arm): r for r in results}
     out = []
+    pooled: dict[str, list[tuple[float, float]]] = {}
     for (sc, arm), a in by.items():
         if arm != "A" or (sc, "B") not in by:
             continue
@@ -531,6 +532,7 @@ def ab_verdicts(results: list[ArmResult]) -> list[str]:
         for p in ("hover", "square"):
             if p in a.phases and p in b.phases and math.isfinite(a.phases[p][0]) and math.isfinite(b.phases[p][0]):
                 ma, mb = a.phases[p][0], b.phases[p][0]
+                pooled.setdefault(p, []).append((ma, mb))
                 ratio = mb / max(ma, 1e-6)
                 # a hover's mean error is ~1-2 cm: a ratio of such means is the resolution of GLOBAL_POSITION_INT
                 # (1e-7 deg, 1.1 cm), not a difference between the arms
@@ -553,4 +555,10 @@ def ab_verdicts(results: list[ArmResult]) -> list[str]:
                 within = max((eb for _o, eb in b.marks_err if math.isfinite(eb)), default=math.nan)
                 out.append(f"- {sc}: kept flying (no failsafe), EKF error <= {within:.1f} m at every 5 s mark "
                            f"(target <= 3 m: {'met' if within <= 3.0 else 'NOT met'})")
+    for p, pairs in pooled.items():
+        if len(pairs) > 1:  # one scenario's ratio carries the run-to-run spread of a 0.15 m mean; the pool less so
+            ma, mb = (float(np.mean(x)) for x in zip(*pairs))
+            out.append(f"- all {len(pairs)} scenarios pooled, {p}: mean EKF error B/A = {mb / max(ma, 1e-6):.2f}x "
+                       f"({mb:.3f} vs {ma:.3f} m; A's scenario means span {min(x[0] for x in pairs):.3f}-"
+                       f"{max(x[0] for x in pairs):.3f} m)")
     return out

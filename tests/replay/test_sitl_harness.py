@@ -229,6 +229,19 @@ def test_verdicts_tolerate_the_resolution_and_the_failsafe_check_period():
     assert "(target <= 3 m: NOT met)" in "\n".join(core.ab_verdicts([a, b]))
 
 
+def test_verdicts_pool_the_scenarios():
+    runs = []
+    for sc, (ea, eb) in {"square-deny-30": (0.10, 0.13), "square-deny-60": (0.20, 0.19)}.items():
+        runs.append(core.analyse(core.SCENARIOS[sc], "A", scripted_flight(lambda t, e=ea: e)))
+        runs.append(core.analyse(core.SCENARIOS[sc], "B", scripted_flight(lambda t, e=eb: e)))
+    v = "\n".join(core.ab_verdicts(runs))
+    means = {r.arm: [] for r in runs}
+    for r in runs:
+        means[r.arm].append(r.phases["square"][0])
+    ratio = np.mean(means["B"]) / np.mean(means["A"])
+    assert f"all 2 scenarios pooled, square: mean EKF error B/A = {ratio:.2f}x" in v and 1.0 < ratio < 1.1
+
+
 def test_scenarios_are_consistent():
     for name, sc in core.SCENARIOS.items():
         assert sc.name == name
