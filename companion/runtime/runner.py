@@ -24,9 +24,11 @@ yields to the event loop every :data:`YIELD_S` so the signal handler runs.
 from __future__ import annotations
 
 import asyncio
+import importlib
 import logging
 import signal
 import sys
+import threading
 import time
 from array import array
 from collections import defaultdict
@@ -156,6 +158,7 @@ class Runtime:
             loop.call_later(duration_s, stop, f"--duration {duration_s:g} s")
         self.link.start(loop, queue.put_nowait)
         self.notifier.ready(f"link {self.link.spec.url} open, injector {self.config.inject.mode}")
+        threading.Thread(target=warm_deferred_imports, name="warm-imports", daemon=True).start()
         housekeeping = asyncio.ensure_future(self._housekeeping())
         last_yield = time.perf_counter()
         try:
@@ -325,6 +328,20 @@ class DeferredSink:
     def __getattr__(self, name: str) -> Any:  # anything else (flush, paths, ...) is the sink's own, after a drain
         self.drain()
         return getattr(self.sink, name)
+
+
+#: modules the pipeline imports at their first use, not at start-up (READY comes sooner without them); imported in a
+#: thread once the loop runs, so the first use does not stall the loop behind the link (scipy.spatial, the KNN
+#: predictor's tree: 0.56 s, which made the loop coalesce IMU samples for the first second of every run)
+DEFERRED_IMPORTS = ("scipy.spatial",)
+
+
+def warm_deferred_imports() -> None:
+    for name in DEFERRED_IMPORTS:
+        try:
+            importlib.import_module(name)
+        except Exception as err:  # noqa: BLE001 - the first use will raise it where it can be handled
+            _logger.debug("deferred import of %s failed: %s", name, err)
 
 
 def coalesce_imu(events: list[Event]) -> list[Event]:

@@ -642,9 +642,10 @@ def test_close_from_signal_handler_during_write(tmp_path):
         for k in range(6):
             path = tmp_path / f"alarm{k}.mcap"
             rec = Recorder(path, chunk_size=2048)
+            rec.write(ImuSample(0.0, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), 0))  # the timer starts after a first write
+            written = 1
             signal.signal(signal.SIGALRM, lambda *_: rec.close())
             signal.setitimer(signal.ITIMER_REAL, 0.01 + 0.007 * k)
-            written = 0
             with pytest.raises(RecordError, match="closed"):
                 while written < 10**7:
                     rec.write(ImuSample(written / 1000, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), 0))

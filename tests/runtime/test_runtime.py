@@ -204,3 +204,15 @@ def test_udp_link_learns_the_peer_and_requests_streams(playback):
     assert link.target == (1, 1) and len(sim.stats.requests) == 4
     imu = [e for i in items if isinstance(i, Batch) for e in i.events if isinstance(e, ImuSample)]
     assert len(imu) > 50
+
+
+def test_deferred_imports_are_warmed_off_the_loop():
+    """The runtime starts without scipy.spatial (READY sooner) and imports it in a thread once the loop runs: at its
+    first use in the loop (the KNN predictor's tree) it stalled the loop 0.5 s behind the link."""
+    import subprocess
+    import sys
+
+    code = ("import sys; import companion.runtime.runner as r; assert 'scipy.spatial' not in sys.modules; "
+            "r.warm_deferred_imports(); assert all(m in sys.modules for m in r.DEFERRED_IMPORTS)")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
