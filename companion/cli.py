@@ -485,6 +485,10 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--noise", action="store_true", help="bad input once a second: garbage, bad CRC, other systems, NaN, duplicates")
     v.add_argument("--signing-key-file", default=None, help="sign what we send, accept only signed frames")
     v.add_argument("--record", help="JSON-lines record of every GPS_INPUT received (with truth and error)")
+    v.add_argument("--gps-mav-instance", type=int, choices=(0, 1), default=None, metavar="N",
+                   help="GPS instance N (0 or 1, = the companion's gps_id) is a MAVLink GPS (GPS{N+1}_TYPE=14) as "
+                        "ArduPilot has it: arming waits for a 3D GPS_INPUT for it at most 1 s old (the flight follows "
+                        "later; 'PreArm: GPS {N+1}: Bad fix' meanwhile); the record marks GPS_INPUT the autopilot ignores")
     v.add_argument("--idle-exit", type=float, default=10.0, metavar="SECONDS",
                    help="end once the companion has gone quiet this long after it was heard (default 10: a companion "
                         "reconnects within its 8 s back-off; 0: serve until the flight ends or SIGTERM)")

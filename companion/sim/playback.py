@@ -79,6 +79,7 @@ class Playback:
     items: Sequence[Item] | LazyItems
     truth: Callable[[float], tuple[float, float, float] | None]  # play_s -> (lat, lon, alt_msl) or None
     description: str
+    arm_s: float | None = None  # when the flight arms (playback s; None: never, or unknown)
 
     @property
     def duration_s(self) -> float:
@@ -157,7 +158,7 @@ def playback_from_flight(flight=None, *, gravity: tuple[np.ndarray, np.ndarray] 
         tr = profile.sample(t)
         return float(tr.lat_deg[0]), float(tr.lon_deg[0]), float(tr.alt_msl_m[0])
 
-    return Playback(items, truth, f"generated flight ({flight.duration_s:.0f} s, seed {flight.seed})")
+    return Playback(items, truth, f"generated flight ({flight.duration_s:.0f} s, seed {flight.seed})", flight.armed_s[0])
 
 
 def playback_from_tlog(path: str | Path) -> Playback:
@@ -168,7 +169,7 @@ def playback_from_tlog(path: str | Path) -> Playback:
     items: list[Item] = []
     autopilot: tuple[int, int] | None = None
     gps_t, gps_pos = [], []
-    t0 = None
+    t0 = arm_s = None
     while True:
         m = log.recv_msg()
         if m is None:
@@ -188,6 +189,8 @@ def playback_from_tlog(path: str | Path) -> Playback:
         if t0 is None:
             t0 = t
         play = t - t0
+        if mtype == "HEARTBEAT" and arm_s is None and m.base_mode & mavlink2.MAV_MODE_FLAG_SAFETY_ARMED:
+            arm_s = play
         if mtype == "GPS_RAW_INT" and m.fix_type >= 3 and not (m.lat == 0 and m.lon == 0):
             gps_t.append(play)
             gps_pos.append((units.deg_from_degE7(m.lat), units.deg_from_degE7(m.lon), units.m_from_mm(m.alt)))
@@ -208,4 +211,4 @@ def playback_from_tlog(path: str | Path) -> Playback:
         p = gp[i - 1] + w * (gp[i] - gp[i - 1])
         return float(p[0]), float(p[1]), float(p[2])
 
-    return Playback(items, truth, f"tlog {Path(path).name}")
+    return Playback(items, truth, f"tlog {Path(path).name}", arm_s)

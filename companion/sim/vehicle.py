@@ -18,7 +18,13 @@ RAW_IMU / SCALED_IMU2, ATTITUDE, STATUSTEXT -- and behaves like one towards the 
 * a long generated flight (hours of cruise, :mod:`companion.sim.cruise`) is framed a chunk of playback time
   at a time (:class:`LazyItems`), so its hundreds of thousands of message objects never all exist at once;
 * every GPS_INPUT received is written to a JSON-lines record with the truth at the message's time and
-  the horizontal error (truth: the flight's trajectory, or the log's own receiver positions).
+  the horizontal error (truth: the flight's trajectory, or the log's own receiver positions); one the autopilot would
+  not use is marked ``ignored`` (:mod:`companion.sim.autopilot_gps`: below 3D, or not for the MAVLink instance);
+* ``gps_mav_instance=N`` (the companion feeds GPS instance N, as with ``GPS{N+1}_TYPE = 14``): at the flight's arming
+  time the vehicle arms only with a 3D GPS_INPUT for N at most 1 s old; until then it repeats its last disarmed
+  second (HEARTBEAT, IMU and GNSS at rest), retries each second, sends "PreArm: GPS {N+1}: Bad fix" at once and every
+  30 s, and the rest of the flight follows that much later (records "arming_refused", "armed" with the delay). Only
+  on the source's first pass, when it is played from before its arming; fault windows stay on the playback clock.
 
 Time: the playback clock is the source's boot time (log receive time for a tlog); the wall clock only
 paces it.
@@ -26,6 +32,7 @@ paces it.
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import select
@@ -41,9 +48,13 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from companion.nav.frame import LocalFrame
 from companion.inject.gps_input import decode_gps_input
+from companion.sim.autopilot_gps import ArmingCheck, ignored_by
+from companion.sim.mavlink_out import statustext
 from companion.sim.playback import _ALWAYS, Item, Playback, _window
 
 MAV_CMD_SET_MESSAGE_INTERVAL = mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL
+#: an arming refused holds the flight this long (playback s) before the next attempt: its last disarmed second repeats
+ARM_RETRY_S = 1.0
 
 
 @dataclass
@@ -96,6 +107,7 @@ class VehicleSim:
         key: bytes | None = None,
         seed: int = 0,
         idle_exit_s: float = 0.0,
+        gps_mav_instance: int | None = None,
     ) -> None:
         if streams not in ("requested", "all"):
             raise ValueError("streams must be 'requested' or 'all'")
@@ -128,6 +140,13 @@ class VehicleSim:
         #: end once the companion has been heard and then nothing came from it for this long (wall s; 0: never)
         self.idle_exit_s = idle_exit_s
         self._last_rx: float | None = None  # monotonic time of the last bytes from the companion
+        self.gps_mav_instance = gps_mav_instance
+        self.arming = ArmingCheck(gps_mav_instance) if gps_mav_instance is not None else None
+        t_arm = playback.arm_s
+        # the arming check applies when the played part starts disarmed and reaches the arming time
+        self.arm_gate_s = t_arm if (self.arming is not None and t_arm is not None and t_arm >= ARM_RETRY_S
+                                    and self.start_s < t_arm <= self.end_s) else None
+        self.hold_s = 0.0  # how long arming was refused: everything after the arming time plays this much later
 
     # -- I/O ----------------------------------------------------------------------------------
     def _mav(self, src):
@@ -233,8 +252,13 @@ class VehicleSim:
             d = decode_gps_input(m)
             boot_s = d["time_boot_us"] * 1e-6
             t = boot_s + (self.boot_play[1] - self.boot_play[0])  # boot time -> playback time
-            tr = self.playback.truth(self.start_s + (t - self.start_s) % self.period_s if t > self.end_s else t)
+            tr = self.playback.truth(self._flight_s(t))
             rec = {"event": "gps_input", "play_s": play_s, "state_play_s": t, "signed": signed, **d}
+            why = ignored_by(d["gps_id"], d["fix_type"], self.gps_mav_instance)
+            if why:
+                rec["ignored"] = why
+            if self.arming is not None:
+                self.arming.on_gps_input(play_s, d["gps_id"], d["fix_type"])
             if tr is not None:
                 frame = LocalFrame(tr[0], tr[1], tr[2])
                 ned = frame.to_ned_m(d["lat_deg"], d["lon_deg"], d["alt_msl_m"])
@@ -242,6 +266,26 @@ class VehicleSim:
                 rec["err_h_m"] = float(math.hypot(ned[0], ned[1]))
                 rec["err_v_m"] = float(abs(ned[2]))
             self._log(rec)
+
+    def _flight_s(self, t: float) -> float:
+        """Playback time -> the source's time: back by the arming delay (held at the arming time while it lasted),
+        then into the source's window when looping."""
+        if self.arm_gate_s is not None and t >= self.arm_gate_s:
+            t = max(self.arm_gate_s, t - self.hold_s)
+        return self.start_s + (t - self.start_s) % self.period_s if t > self.end_s else t
+
+    def _try_arm(self, now: float, silent: bool) -> bool:
+        """An arming attempt at the flight's arming time (or a retry); True once armed."""
+        armed, text = self.arming.attempt(now)
+        if text is not None and not silent:
+            self._send(statustext(mavlink2.MAV_SEVERITY_CRITICAL, text), (1, 1))
+        if armed:
+            self._log({"event": "armed", "play_s": now, "scripted_s": self.arm_gate_s, "delay_s": self.hold_s,
+                       "attempts": self.arming.attempts, "last_fix": self.arming.last_fix})
+        elif text is not None:
+            self._log({"event": "arming_refused", "play_s": now, "scripted_s": self.arm_gate_s, "text": text,
+                       "attempts": self.arming.attempts, "last_fix": self.arming.last_fix})
+        return armed
 
     def _log(self, rec: dict) -> None:
         if self._record is not None:
@@ -308,6 +352,15 @@ class VehicleSim:
 
         src = window()
         pending = next(src, None)
+        hold_items: list[Item] = []
+        if self.arm_gate_s is not None:  # the last second before arming, without its one-off texts: what a refusal repeats
+            hold_items = [it for it in _window(self.playback.items, self.arm_gate_s - ARM_RETRY_S, self.arm_gate_s)
+                          if it.play_s < self.arm_gate_s and it.msg.get_type() != "STATUSTEXT"]
+            if not hold_items:
+                self.arm_gate_s = None  # nothing to hold the vehicle with (a log silent before it arms)
+        gate = self.arm_gate_s
+        if self.arming is not None:
+            self._log({"event": "arming_check", "gps_mav_instance": self.gps_mav_instance, "scripted_s": gate})
         if self.scheme == "tcpin":
             # like ArduPilot SITL on 5760: the vehicle's clock starts once something connects
             while self._conn is None and not self._stop:
@@ -332,7 +385,7 @@ class VehicleSim:
                     if pending is None:
                         break  # nothing to play
                     self._log({"event": "loop", "play_s": play_now(), "loop": k})
-                loop_offset = k * self.period_s
+                loop_offset = k * self.period_s + self.hold_s
                 now = play_now()
                 # link drop: close everything, reopen at the end of the window
                 if _in(f.link_drop, now) and not dropped:
@@ -369,6 +422,13 @@ class VehicleSim:
                     self._log({"event": "idle_exit", "play_s": now, "idle_s": self.idle_exit_s})
                     break  # the companion went away: nobody to fly for
                 while pending is not None and pending.play_s + loop_offset <= now:
+                    if (gate is not None and k == 0 and pending.play_s >= gate and self.arming.armed_at_s is None
+                            and not self._try_arm(now, silent)):
+                        self.hold_s += ARM_RETRY_S  # refused: replay the last disarmed second, then try again
+                        loop_offset += ARM_RETRY_S
+                        src = itertools.chain(hold_items[1:], [pending], src)
+                        pending = hold_items[0]
+                        continue
                     it = pending
                     t = it.play_s + loop_offset
                     pending = next(src, None)
@@ -411,7 +471,8 @@ class VehicleSim:
                        "gps_input_signed": self.stats.gps_input_signed, "requests": len(self.stats.requests),
                        "connections": self.stats.connections, "received": dict(self.stats.received),
                        "max_lag_s": self.stats.max_lag_s, "late_messages": self.stats.late_messages,
-                       "sent": dict(self.stats.sent)})
+                       "sent": dict(self.stats.sent), "arm_delay_s": self.hold_s,
+                       "armed_at_s": self.arming.armed_at_s if self.arming else None})
             self._close_link()
             if self._conn is not None:
                 self._conn.close()

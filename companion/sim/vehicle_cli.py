@@ -139,8 +139,11 @@ def run_sim(args) -> int:
     sim = VehicleSim(
         playback, args.listen, faults=faults, speed=args.speed, start_s=args.start, end_s=args.end,
         streams=args.streams, loops=args.loops, record=args.record, key=key, seed=args.seed or 0,
-        idle_exit_s=args.idle_exit,
+        idle_exit_s=args.idle_exit, gps_mav_instance=getattr(args, "gps_mav_instance", None),
     )
+    if sim.arming is not None and sim.arm_gate_s is None:
+        _NOTES.append(f"sim: --gps-mav-instance: no arming check (the flight arms at {playback.arm_s} s, played from "
+                      f"{sim.start_s:g} to {sim.end_s:g} s)")
     signal.signal(signal.SIGTERM, sim.stop)
     signal.signal(signal.SIGINT, sim.stop)
     print(f"sim: {playback.description} on {args.listen} from {args.start:g} s at x{args.speed:g}", flush=True)

@@ -14,6 +14,7 @@ import sys
 import time
 
 import numpy as np
+import pytest
 
 from companion.record import iter_payloads, summarize
 from tests.conftest import REPO, free_port
@@ -270,3 +271,70 @@ def test_simulator_ends_once_the_companion_is_gone(tmp_path):
     recs = sim.finish()
     idle = [r for r in recs if r["event"] == "idle_exit"]
     assert idle and idle[0]["play_s"] < 60.0 and waited_s < 60.0
+
+
+def _heartbeats_and_texts(mcap):
+    hb, texts = [], []
+    for topic, _log_ns, data in iter_payloads(mcap):
+        if topic == "/input/heartbeat":
+            hb.append(json.loads(data)["armed"])
+        elif topic == "/input/statustext":
+            texts.append(json.loads(data)["text"])
+    return hb, texts
+
+
+def test_mav_gps_instance_arms_on_the_companions_3d_fix(tmp_path):
+    """`companion sim --gps-mav-instance 1` arms like an ArduPilot with GPS2_TYPE=14: only with a 3D GPS_INPUT for
+    instance 1 at most 1 s old. `companion run --inject inject` (activate backup: a fix while disarmed) gives it one;
+    the flight then flies, and the record marks exactly the GPS_INPUT below 3D as ignored by EKF3."""
+    sim = Sim(tmp_path, "--gps-mav-instance", 1, "--end", 60)
+    comp = run_companion(sim.port, tmp_path / "c.mcap", "--inject", "inject")
+
+    def climbing(recs):  # armed, and fixes for 5 s of flight after it (the sample flight takes off at 10 s)
+        armed = [r for r in recs if r["event"] == "armed"]
+        return bool(armed) and any(g["state_play_s"] > armed[0]["play_s"] + 5.0 for g in gps_inputs(recs))
+
+    wait_for_records(sim, climbing, timeout_s=120.0)
+    if comp.poll() is None:
+        comp.send_signal(signal.SIGTERM)
+    _out, err = comp.communicate(timeout=60)
+    recs = sim.finish()
+    assert comp.returncode == 0 and "Traceback" not in err, err
+    armed = [r for r in recs if r["event"] == "armed"]
+    assert len(armed) == 1, [r for r in recs if r["event"] != "gps_input"]
+    a = armed[0]
+    assert a["scripted_s"] == pytest.approx(8.1) and a["play_s"] - a["scripted_s"] == pytest.approx(a["delay_s"], abs=0.2)
+    fix_t, fix_type = a["last_fix"]
+    assert fix_type >= 3 and 0.0 <= a["play_s"] - fix_t <= 1.0
+    gi = gps_inputs(recs)
+    assert all(g["gps_id"] == 1 for g in gi)
+    assert all(("ignored" in g) == (g["fix_type"] < 3) for g in gi)
+    assert all(g["ignored"] == "by EKF3: fix_type < 3" for g in gi if g["fix_type"] < 3)
+    flying = [g["err_h_m"] for g in gi if g["state_play_s"] > a["play_s"] and g["fix_type"] >= 3 and "err_h_m" in g]
+    assert len(flying) >= 20 and np.median(flying) < 3.0  # the truth follows the flight as it was delayed
+    hb, texts = _heartbeats_and_texts(tmp_path / "c.mcap")
+    assert True in hb and hb[0] is False  # the companion saw the vehicle arm
+    assert not any("Bad fix" in t for t in texts) or a["delay_s"] > 0
+
+
+def test_mav_gps_instance_refuses_to_arm_without_the_companions_fix(tmp_path):
+    """In shadow mode the companion sends nothing: the vehicle with a MAVLink GPS2 never arms, says
+    "PreArm: GPS 2: Bad fix" (the companion records it) and holds on the ground; the record says so."""
+    sim = Sim(tmp_path, "--gps-mav-instance", 1)
+    comp = run_companion(sim.port, tmp_path / "c.mcap", "--inject", "shadow", "--duration", 16)
+    recs = wait_for_records(sim, lambda rs: any(r["event"] == "arming_refused" for r in rs), timeout_s=120.0)
+    _out, err = comp.communicate(timeout=90)  # then the rest of its 16 s: the sim keeps retrying meanwhile
+    recs = sim.finish()
+    assert comp.returncode == 0 and "Traceback" not in err, err
+    refused = [r for r in recs if r["event"] == "arming_refused"]
+    assert refused and refused[0]["text"] == "PreArm: GPS 2: Bad fix" and refused[0]["last_fix"] is None
+    assert refused[0]["play_s"] == pytest.approx(8.1, abs=0.5)
+    assert not any(r["event"] == "armed" for r in recs) and not gps_inputs(recs)
+    end = recs[-1]
+    assert end["event"] == "end" and end["armed_at_s"] is None
+    assert end["arm_delay_s"] >= 3.0 and end["arm_delay_s"] == pytest.approx(end["play_s"] - 8.1, abs=1.5)
+    hb, texts = _heartbeats_and_texts(tmp_path / "c.mcap")
+    assert len(hb) >= 12 and not any(hb)  # held disarmed all along
+    assert "PreArm: GPS 2: Bad fix" in texts
+    s = summarize(tmp_path / "c.mcap")
+    assert {t.topic: t.count for t in s.topics}["/inject/gps_input"] > 50  # computed, recorded, never sent
