@@ -29,7 +29,9 @@ catching up after a gap would otherwise emit a burst of old positions), nor one 
 receiver. Every state is checked against the receiver's 3D fix nearest to it in time (newer or older, within
 ``consistency_window_s``), carried to the state's epoch at the fix's velocity (the state's when the fix has
 none): horizontal distance d with d^2 > ``consistency_chi2`` (sigma_state^2 + sigma_receiver^2) +
-(``receiver_lag_s`` |v|)^2 is a disagreement (chi-square 2 dof 99.9 % = 13.816). After one nothing is sent
+(``receiver_lag_s`` |v|)^2 is a disagreement (chi-square 2 dof 99.9 % = 13.816); so is a horizontal velocity
+difference w with w^2 > ``consistency_chi2`` (sigma_v,state^2 + sigma_v,receiver^2) + (``consistency_accel_mps2``
+(|dt| + ``receiver_lag_s``))^2 when the fix has a velocity (|v| is the fix's speed then). After one nothing is sent
 until a check passes again. The fraction of states checked is in the metadata (``cross_check.*``). Each
 refusal is counted and recorded on ``/inject/dropped`` with the reason. Every GPS_INPUT built (sent in
 ``inject`` mode, or what would be sent in ``shadow`` mode) is recorded on ``/inject/gps_input``.
@@ -126,6 +128,10 @@ class InjectConfig:
     consistency_chi2: float = CHI2_2DOF_999  # gate of the receiver cross-check (chi-square, 2 dof, 99.9 %)
     consistency_window_s: float = 0.5  # cross-check against receiver fixes at most this old
     receiver_lag_s: float = 0.2  # receiver fixes may lag the state by this much (allowance |v| x lag)
+    # the velocity cross-check allows the vehicle this horizontal acceleration between the fix and the state (and over
+    # receiver_lag_s); receiver_speed_sigma_mps when the fix gives no speed accuracy
+    consistency_accel_mps2: float = 10.0
+    receiver_speed_sigma_mps: float = 0.5
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -146,7 +152,8 @@ class InjectConfig:
             raise ValueError("max_v_acc_3d_m must be > 0")
         if not 6 <= self.satellites <= 254:
             raise ValueError(f"satellites must be in 6..254 (ArduPilot needs >= 6 for a usable fix), not {self.satellites}")
-        for k in ("uere_m", "max_speed_mps", "gnss_timeout_s", "recover_s", "max_lag_s", "consistency_chi2", "consistency_window_s"):
+        for k in ("uere_m", "max_speed_mps", "gnss_timeout_s", "recover_s", "max_lag_s", "consistency_chi2", "consistency_window_s",
+                  "consistency_accel_mps2", "receiver_speed_sigma_mps"):
             if not getattr(self, k) > 0:
                 raise ValueError(f"{k} must be > 0")
         if not 0.0 <= self.autopilot_lag_s < self.max_lag_s:
@@ -243,7 +250,9 @@ class Injector(Stage):
         self._last_alt_m: float | None = None  # last altitude sent with sigma_v within max_v_acc_alt_m
         self._newest_input_t = -math.inf
         # the receiver's recent 3D fixes: (t_s, lat, lon, sigma_h, vel_n, vel_e), velocities None when not given
-        self._rx_fixes: deque[tuple[float, float, float, float, float | None, float | None]] = deque(maxlen=RX_FIXES_KEPT)
+        # (t_s, lat_deg, lon_deg, sigma_h_m, vel_n_mps, vel_e_mps, speed_sigma_mps): the receiver's recent 3D fixes
+        self._rx_fixes: deque[tuple[float, float, float, float, float | None, float | None, float]] = deque(
+            maxlen=RX_FIXES_KEPT)
         self._inconsistent = False
         self._armed: bool | None = None  # the autopilot's HEARTBEAT armed flag (None: never heard)
         self.cross_checked = 0  # states compared with a receiver fix, of cross_check_states that reached the check
@@ -326,7 +335,10 @@ class Injector(Stage):
         if good:
             h = receiver_sigma(fix, c.uere_m)[0]
             vn, ve = (fix.vel_n_mps, fix.vel_e_mps) if _finite(fix.vel_n_mps, fix.vel_e_mps) else (None, None)
-            self._rx_fixes.append((fix.t_s, fix.lat_deg, fix.lon_deg, h if h is not None and _finite(h) else c.uere_m, vn, ve))
+            s_v = fix.speed_acc_mps if fix.speed_acc_mps is not None and _finite(fix.speed_acc_mps) and fix.speed_acc_mps > 0 \
+                else c.receiver_speed_sigma_mps
+            self._rx_fixes.append((fix.t_s, fix.lat_deg, fix.lon_deg, h if h is not None and _finite(h) else c.uere_m, vn, ve,
+                                   s_v))
             self._last_good_gnss_t = fix.t_s
         else:
             self._last_bad_gnss_t = fix.t_s
@@ -424,13 +436,24 @@ class Injector(Stage):
             return "inconsistent with the receiver (not yet re-checked)" if self._inconsistent else ""
         self.cross_checked += 1
         dt = s.t_s - fx[0]
-        vn, ve = (fx[4], fx[5]) if fx[4] is not None else (s.vel_n_mps, s.vel_e_mps)
+        has_v = fx[4] is not None
+        vn, ve = (fx[4], fx[5]) if has_v else (s.vel_n_mps, s.vel_e_mps)
         n, e, _ = LocalFrame(fx[1], fx[2], 0.0).to_ned_m(s.lat_deg, s.lon_deg, 0.0)
         dn, de = float(n) - vn * dt, float(e) - ve * dt
-        # hypot: no square of a huge (finite) sigma or velocity overflows
-        lag_m = math.hypot(s.vel_n_mps, s.vel_e_mps) * c.receiver_lag_s
-        allowed_m = math.hypot(math.sqrt(c.consistency_chi2) * math.hypot(s.sigma_h_m, fx[3]), lag_m)
-        self._inconsistent = not math.hypot(dn, de) <= allowed_m
+        # hypot: no square of a huge (finite) sigma or velocity overflows. The lag allowance takes the receiver's
+        # speed when it has one: a wrong state velocity must not widen its own allowance
+        lag_m = math.hypot(vn, ve) * c.receiver_lag_s
+        k = math.sqrt(c.consistency_chi2)
+        allowed_m = math.hypot(k * math.hypot(s.sigma_h_m, fx[3]), lag_m)
+        ok = math.hypot(dn, de) <= allowed_m
+        if ok and has_v:
+            # velocity: a state moving 15 m/s off the receiver is metres off it 0.1 s later, whatever sigma_h says
+            cov = s.cov_diag
+            known = len(cov) >= 6 and _finite(cov[3], cov[4]) and min(cov[3], cov[4]) >= 0
+            sv_state = math.sqrt(max(cov[3], cov[4])) if known else math.inf
+            allowed_v = math.hypot(k * math.hypot(sv_state, fx[6]), c.consistency_accel_mps2 * (abs(dt) + c.receiver_lag_s))
+            ok = math.hypot(s.vel_n_mps - vn, s.vel_e_mps - ve) <= allowed_v
+        self._inconsistent = not ok
         if self._inconsistent:
             return "inconsistent with the receiver"
         return ""

@@ -57,6 +57,9 @@ _EPOCH_US = 1e15
 
 #: the altitudes (m above mean sea level) a GNSS fix of a vehicle can have; beyond them the message is corrupt
 MIN_ALT_M, MAX_ALT_M = -1000.0, 100_000.0
+#: an IMU field at an int16 limit is a clamped value, not a reading (ArduPilot's IMUs span 16-32 g and 2000 deg/s:
+#: 16000-32000 mG, 34907 mrad/s; the packer clamps what overflows), so the sample is unknown, not 32.8 g
+INT16_LIMITS = (-32768, 32767)
 
 
 def _finite(*vals: float) -> bool:
@@ -210,6 +213,10 @@ class MavlinkDecoder:
         else:
             boot_s = units.s_from_ms(msg.time_boot_ms)
             index = _IMU_INDEX[mtype]
+        raw = (msg.xacc, msg.yacc, msg.zacc, msg.xgyro, msg.ygyro, msg.zgyro)
+        if any(v in INT16_LIMITS for v in raw):
+            self.dropped[f"{mtype} clamped (a field at its int16 limit)"] += 1
+            return
         t_s = self._stamp(boot_s, recv_s, out)
         if t_s is None:
             return
@@ -220,6 +227,10 @@ class MavlinkDecoder:
     def _attitude(self, msg, recv_s: float, out: list[Event]) -> None:
         if not _finite(msg.roll, msg.pitch, msg.yaw):
             self.dropped["ATTITUDE non-finite"] += 1
+            return
+        # roll in [-pi, pi], pitch in [-pi/2, pi/2]; yaw in [-pi, pi] (ArduPilot) or [0, 2 pi] (float32 rounding aside)
+        if abs(msg.roll) > math.pi + 1e-3 or abs(msg.pitch) > math.pi / 2 + 1e-3 or abs(msg.yaw) > 2 * math.pi + 1e-3:
+            self.dropped["ATTITUDE out of range"] += 1
             return
         t_s = self._stamp(units.s_from_ms(msg.time_boot_ms), recv_s, out)
         if t_s is None:

@@ -98,14 +98,21 @@ class Recovery:
         self._reject_since, self._n_reject_run = None, 0
         if self.mode == "ins":
             kf = self._kf
+            # each velocity component the fix has (GPS_RAW_INT has no vertical one) is reset with the position: a
+            # reset of the position alone kept a velocity 17 m/s off and the output left its stated accuracy
             dv = np.zeros(3)
+            var_v = np.full(3, c.gnss_vel_sigma_mps**2 * c.reset_cov_scale + 1.0)
             vel = self._fix_vel
-            if vel is not None and all(math.isfinite(v) for v in vel):
-                dv = np.asarray(vel, dtype=float) - self._ins_state_at(t)[1]
+            if vel is not None:
+                v_ins = self._ins_state_at(t)[1]
+                for i in range(3):
+                    if math.isfinite(vel[i]):
+                        dv[i] = vel[i] - v_ins[i]
+                        var_v[i] -= 1.0
             kf.P[0:6, :] = 0.0
             kf.P[:, 0:6] = 0.0
             kf.P[0:3, 0:3] = np.diag([sh**2, sh**2, sv**2]) * c.reset_cov_scale
-            kf.P[3:6, 3:6] = np.eye(3) * (c.gnss_vel_sigma_mps**2 * c.reset_cov_scale + (0.0 if vel is not None else 1.0))
+            kf.P[3:6, 3:6] = np.diag(var_v)
             self._correct_ins(y, dv, (0, 0, 0), (0, 0, 0), (0, 0, 0))
             self._emit_reset(t, kind, reason, "ins", float(np.linalg.norm(y)), float(np.linalg.norm(dv)))
         else:

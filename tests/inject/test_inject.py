@@ -394,6 +394,26 @@ def test_every_state_is_checked_against_the_nearest_receiver_fix_newer_or_older(
     assert any("cross-check on 2 of 3 states" in line for line in inj.summary_lines())
 
 
+def test_a_state_velocity_off_the_receiver_is_refused():
+    """On the receiver's position but moving 17 m/s off its velocity (an INS after a clamped IMU sample): metres off a
+    tenth of a second later whatever its sigma_h says, so not sent until it agrees again."""
+    m_deg = 1.0 / 111_000
+    inj = Injector(InjectConfig(mode="shadow"))
+    rx = replace(fix(9.95), h_acc_m=1.0, vel_n_mps=8.0, vel_e_mps=0.0, speed_acc_mps=0.3)
+    inj.process(rx)
+    # state velocity sigma sqrt(0.09) = 0.3 m/s; allowed sqrt(13.8 x (0.3^2 + 0.3^2) + (10 x (0.05 + 0.2))^2) = 2.8 m/s
+    (ok,) = tick(inj, state(t_s=10.0, lat=-35.3632 + 0.4 * m_deg, vel_n_mps=9.5, vel_e_mps=1.0))
+    assert isinstance(ok, GpsInputRecord)
+    inj.process(replace(rx, t_s=10.05))
+    (bad,) = tick(inj, state(t_s=10.1, lat=-35.3632 + 1.2 * m_deg, vel_n_mps=25.0, vel_e_mps=2.0))
+    assert isinstance(bad, InjectorDrop) and bad.reason == "inconsistent with the receiver"
+    (slow,) = tick(inj, state(t_s=10.2, lat=-35.3632 + 0.8 * m_deg, vel_n_mps=4.0, vel_e_mps=-1.5))  # 4.3 m/s off
+    assert isinstance(slow, InjectorDrop) and slow.reason == "inconsistent with the receiver"
+    inj.process(replace(rx, t_s=10.25))
+    (back,) = tick(inj, state(t_s=10.3, lat=-35.3632 + 2.8 * m_deg, vel_n_mps=8.0, vel_e_mps=0.0))
+    assert isinstance(back, GpsInputRecord)
+
+
 def test_a_fix_far_from_the_state_for_seconds_stops_every_message():
     """Do no harm: a receiver 300 m away (newer than every state) refuses each state, not one in a hundred."""
     inj = Injector(InjectConfig(mode="shadow"))

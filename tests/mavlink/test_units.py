@@ -102,3 +102,28 @@ def test_gps_without_fix_or_at_zero_carries_no_position():
     for fix in (a, b):
         assert not fix.has_position and fix.lat_deg is None and fix.lon_deg is None
     assert b.fix_type == 1  # a 3D "fix" at 0,0 is reported as no fix
+
+
+@pytest.mark.parametrize("field", ["xacc", "zacc", "xgyro", "zgyro"])
+@pytest.mark.parametrize("limit", [32767, -32768])
+def test_imu_field_at_int16_limit_is_dropped_not_read(field, limit):
+    """A clamped field is not a 32.8 g reading: integrated once, it put the INS 6 m/s off."""
+    vals = dict(xacc=10, yacc=-20, zacc=-1000, xgyro=1, ygyro=2, zgyro=3)
+    vals[field] = limit
+    dec = _decoder()
+    m = mavlink.MAVLink_raw_imu_message(5_000_000, *vals.values(), 1, 2, 3)
+    assert dec.decode(_wire(m), 1.0) == []
+    assert dec.dropped["RAW_IMU clamped (a field at its int16 limit)"] == 1
+    vals[field] = limit - 1 if limit > 0 else limit + 1  # one count inside is a reading
+    (imu,) = dec.decode(_wire(mavlink.MAVLink_raw_imu_message(5_020_000, *vals.values(), 1, 2, 3)), 1.02)
+    assert isinstance(imu, ImuSample)
+
+
+@pytest.mark.parametrize("roll,pitch,yaw,ok", [(0.1, 0.2, 3.1, True), (-3.14159, -1.5707, 6.28, True),
+                                                (0.0, 1e22, 0.0, False), (4.0, 0.0, 0.0, False),
+                                                (0.0, 1.7, 0.0, False), (0.0, 0.0, -7.0, False)])
+def test_attitude_out_of_range_is_dropped(roll, pitch, yaw, ok):
+    dec = _decoder()
+    out = dec.decode(_wire(mavlink.MAVLink_attitude_message(5000, roll, pitch, yaw, 0.0, 0.0, 0.0)), 1.0)
+    assert (len(out) == 1) == ok
+    assert dec.dropped["ATTITUDE out of range"] == (0 if ok else 1)

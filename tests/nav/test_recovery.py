@@ -118,6 +118,29 @@ def test_persistent_rejection_of_a_good_fix_resets_position_and_velocity():
     assert abs(np.median(n_off) - 40.0) < 3.0  # follows the receiver
 
 
+def test_reset_after_rejection_takes_the_horizontal_velocity_of_a_fix_without_vertical_speed():
+    """GPS_RAW_INT has no vertical speed: the reset still takes the fix's north/east velocity (it kept a 17 m/s
+    error once, and the output left its stated accuracy)."""
+    sim = simulate_flight(60.0, np.random.default_rng(7), noise=RECEIVER)
+    t0 = sim.events[0].t_s
+    events = []
+    for e in sim.events:
+        if isinstance(e, GnssFix):
+            e = dataclasses.replace(e, vel_d_mps=None)
+        elif isinstance(e, ImuSample) and t0 + 30.0 <= e.t_s < t0 + 30.1:
+            e = dataclasses.replace(e, accel_frd_mps2=(300.0, *e.accel_frd_mps2[1:]))  # 5 bad samples: ~30 m/s
+        events.append(e)
+    out = run_navigator(events)
+    resets = [o for o in out if isinstance(o, NavigatorReset) and o.kind == "gnss_rejected"]
+    assert resets, "a 30 m/s velocity error must end in a reset"
+    r = resets[0]
+    assert r.jump_vel_mps > 10.0
+    after = [o for o in _fused(out) if r.t_s + 0.05 < o.t_s < r.t_s + 1.0]
+    dv = [np.hypot(o.vel_n_mps - np.interp(o.t_s, sim.truth_t_s, sim.truth_vel_ned_mps[:, 0]),
+                   o.vel_e_mps - np.interp(o.t_s, sim.truth_t_s, sim.truth_vel_ned_mps[:, 1])) for o in after]
+    assert after and max(dv) < 2.0, dv
+
+
 def test_rejected_fix_without_3d_fix_does_not_reset():
     sim = simulate_flight(60.0, np.random.default_rng(7), noise=RECEIVER)
     t0 = sim.events[0].t_s
