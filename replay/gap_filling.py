@@ -215,6 +215,12 @@ def _series(out, frame: LocalFrame, cls):
     return t, ned
 
 
+def free_ins(cfg: NavigatorConfig) -> NavigatorConfig:
+    """The navigator as the INS-alone baseline: no predictor and none of the aids that are not inertial (motion prior,
+    rotor drag, zero velocity); with GNSS and attitude withheld it coasts on the IMU from the filter's state."""
+    return dataclasses.replace(cfg, fuse_predictor=False, motion_prior=False, rotor_drag=False, zero_velocity=False)
+
+
 def run_case(log: LogData, windows, decimate_hz: float | None, cfg: NavigatorConfig,
              truth_mask: np.ndarray) -> tuple[dict[str, np.ndarray], str]:
     """Errors (n, 3) NED at the truth fixes for every method; truth = fixes in truth_mask (withheld)."""
@@ -247,7 +253,7 @@ def run_case(log: LogData, windows, decimate_hz: float | None, cfg: NavigatorCon
         ft, fned = _series(run_navigator(events, no_pred), log.frame, FusedState)
         err["ins_att"] = series_at(ft, fned, tq - cfg.gnss_delay_s) - truth
         if windows:
-            ft, fned = _series(run_navigator(withhold_aiding(events, windows), no_pred), log.frame, FusedState)
+            ft, fned = _series(run_navigator(withhold_aiding(events, windows), free_ins(cfg)), log.frame, FusedState)
             err["ins_alone"] = series_at(ft, fned, tq - cfg.gnss_delay_s) - truth
     else:  # kinematic: the CV Kalman filter without predictor is the comparable row
         ft, fned = _series(run_navigator(events, no_pred), log.frame, FusedState)
@@ -540,7 +546,7 @@ def _plot_example(path: Path, log: LogData, window: tuple[float, float], dec, cf
     events = _drop_fixes(log.events, set(log.fix_t[~keep].tolist()))
     full = run_navigator(events, cfg)
     no_pred = dataclasses.replace(cfg, fuse_predictor=False)
-    alone = run_navigator(withhold_aiding(events, [window]), no_pred)
+    alone = run_navigator(withhold_aiding(events, [window]), free_ins(cfg))
     tq = np.arange(a, b, 0.1)
     m = (log.fix_t >= a - 3) & (log.fix_t < b + 2)
     avail = keep

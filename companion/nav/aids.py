@@ -5,13 +5,56 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from companion.constants import receiver_sigma
 from companion.events import GnssFix, PositionFix
-from companion.nav.measurements import HorizontalPositionMeasurement, VelocityMeasurement
+from companion.nav.measurements import DragMeasurement, HorizontalPositionMeasurement, VelocityMeasurement
+from companion.nav.motion_prior import blend
 
 
 class Aids:
-    """Mixin: fix sigmas, the PositionFix aid and the zero-velocity pseudo-measurement."""
+    """Mixin: fix sigmas, the PositionFix aid, the zero-velocity pseudo-measurement, rotor drag and the motion prior."""
+
+    def _motion_blend(self, t: float, ned, P: np.ndarray):
+        """The output position after the product with the motion prior (companion.nav.motion_prior), and its
+        covariance; unchanged while the prior has nothing to say."""
+        prior = self.motion.predict(t)
+        if prior is None:
+            return ned, P
+        if self.mode != "ins" or not self.ahrs_consistent:  # the learnt INS error is that of an attitude-aided INS
+            prior = (prior[0], prior[1], None)
+        ned, var = blend(ned, (P[0, 0], P[1, 1], P[2, 2]), prior, self.motion.config.consistency_sigma)
+        P = P.copy()
+        P[0, 0], P[1, 1], P[2, 2] = var
+        self._used.add("motion_prior")
+        return ned, P
+
+    def _rotor_drag_tick(self, t: float) -> None:
+        """INS mode, at an output tick: learn the rotor-drag model while GNSS aids, fuse it once GNSS is gone
+        (companion.nav.drag)."""
+        drag, ins = self.drag, self.ins
+        iv = drag.tick(t, ins.dcm(), ins.vel_ned)
+        if iv is None or self._last_fix_t is None:
+            return
+        dc = drag.config
+        age = t - self._last_fix_t
+        if age <= dc.learn_max_fix_age_s:
+            if math.hypot(ins.vn, ins.ve) >= dc.learn_min_speed_mps:
+                drag.learn(iv)
+            return
+        model = drag.model() if age >= dc.min_fix_age_s else None
+        if model is None:
+            return
+        th, cov, s2 = model
+        k = float(th[0])
+        R = np.diag(s2) * dc.sigma_scale**2 + iv.rows_end @ cov @ iv.rows_end.T
+        # the interval mean carried to its end with the model (the innovation is that of the interval means)
+        z = np.asarray(iv.f_xy) + (iv.rows_end - iv.rows) @ th
+        m = DragMeasurement(t, "rotor_drag", (float(z[0]), float(z[1])), k, (float(th[1] / k), float(th[2] / k)),
+                            (float(th[3]), float(th[4])), (float(R[0, 0]), float(R[0, 1]), float(R[1, 1])))
+        if self._ins_apply(m)[0]:
+            self._used.add("rotor_drag")
 
     def _zero_velocity_update(self, t: float) -> None:
         """A detected hover during a blockage: the vehicle is not going anywhere (companion.nav.hover)."""

@@ -49,11 +49,13 @@ from companion.nav.config import NavigatorConfig
 from companion.nav.ins import StrapdownIns, dcm_from_quat, quat_from_euler
 from companion.nav.ins_filter import InsFilter
 from companion.nav.kinematic import KinematicFilter
+from companion.nav.drag import RotorDrag
+from companion.nav.motion_prior import MotionPrior
 from companion.nav.hover import HoverDetector
 from companion.nav.knn_predictor import KnnPredictor
 from companion.nav.measurements import PositionMeasurement, VelocityMeasurement
 from companion.nav.modes import Modes
-from companion.nav.monitors import AhrsHeadingCheck, HoldPrior
+from companion.nav.monitors import AhrsHeadingCheck
 from companion.nav.outputs import FrameInfo, FusedState, PredictorPoint
 from companion.events import Attitude, AutopilotAltitude, Event, GnssFix, ImuSample, PositionFix
 from companion.nav.frame import LocalFrame
@@ -67,9 +69,10 @@ __all__ = ["Navigator", "NavigatorConfig", "run_navigator"]
 
 
 _PRIO = {ImuSample: 0, Attitude: 1, GnssFix: 2}
+_USED_ORDER = ("gnss", "predictor", "position_fix", "altitude", "zero_velocity", "rotor_drag", "motion_prior")
 
 
-class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCheck, HoldPrior, BaroAid, Stage):
+class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCheck, BaroAid, Stage):
     """Streaming gap-filling stage: ``process(event) -> list[output]``, then ``finish()``."""
 
     def __init__(self, config: NavigatorConfig | None = None) -> None:
@@ -103,9 +106,13 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
         self._hist: deque[list[float]] = deque()  # [t, n, e, d, vn, ve, vd] per IMU step, last delay + 0.2 s
         self._gnss_lag = GnssLagEstimator(c.gnss_lag) if c.gnss_delay_estimate else None
         self._delay_learnt_s: float | None = None
+        self._corr_sums = [0.0] * 9
+        self._ins_epoch = 0
         self._monitors_init()
         self.hover = HoverDetector(c.hover)
         self._zupt_t = -math.inf
+        self.drag = RotorDrag(c.drag) if c.rotor_drag else None
+        self.motion = MotionPrior(c.motion) if c.motion_prior else None
         # kinematic filter
         self._kin: KalmanFilter | None = None
         self._kin_t = 0.0
@@ -210,7 +217,8 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
         if self.mode == "ins":
             accepted = self._ins_position_update(m, gnss_gap)
             if accepted and vel is not None and c.fuse_gnss_velocity and math.isfinite(vel[2]):
-                self._ins_apply(VelocityMeasurement(t, "gnss_vel", vel, c.gnss_vel_sigma_mps, c.gate_chi2))
+                self._ins_apply(VelocityMeasurement(t, "gnss_vel", vel, c.gnss_vel_sigma_mps, c.gate_chi2,
+                                                    self._gnss_vel_delay_s()))
         if self._kin is None:
             self._kin_init(t, z, vel)
         else:
@@ -225,9 +233,15 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
     def _fix_accepted(self, t: float, z, sh: float, sv: float, vel) -> None:
         self._used.add("gnss")
         self._last_fix_t = t
-        if self.config.hold_prior:
-            self._learn_motion(t, z, sh, sv)
-        self.predictor.add_fix(t, z, sh, sv, None if vel is None or not math.isfinite(vel[2]) else vel)
+        v3 = None if vel is None or not math.isfinite(vel[2]) else vel
+        if self.motion is not None:
+            ins = None
+            if self.mode == "ins" and self.ins is not None:
+                i = self.ins
+                p, v = self.frame.ned_tuple(i.lat_deg, i.lon_deg, i.h_m), i.vel_ned
+                ins = (p, v, *self._ins_free(p, v))
+            self.motion.add_fix(t, z, v3, (sh * sh, sh * sh, sv * sv), self.hover.hover(t), ins, self._ins_epoch)
+        self.predictor.add_fix(t, z, sh, sv, v3)
 
     # ------------------------------------------------------------------ INS filter
     # ------------------------------------------------------------------ 10 Hz ticks
@@ -268,6 +282,8 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
             self._zero_velocity_update(tg)
         if self.mode == "ins":
             self._ins_predict(tg)
+            if self.drag is not None:
+                self._rotor_drag_tick(tg)
             ins = self.ins
             n, e, d = self.frame.ned_tuple(ins.lat_deg, ins.lon_deg, ins.h_m)
             dt = tg - ins.t_s
@@ -275,12 +291,6 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
             vel = (ins.vn, ins.ve, ins.vd)
             rpy = ins.euler()
             P = self._kf.P
-            if c.hold_prior:
-                b = self._hold_blend(tg, (n, e, d), (P[0, 0], P[1, 1], P[2, 2]))
-                if b is not None:
-                    (n, e, d), pv = b
-                    P = P.copy()
-                    P[0, 0], P[1, 1], P[2, 2] = pv
         else:
             if self._kin is None:
                 return
@@ -291,9 +301,11 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
             a = self._att
             rpy = (a.roll_rad, a.pitch_rad, a.yaw_rad) if a is not None and tg - a.t_s < 1.0 else (math.nan,) * 3
             P = self._kin.P
+        if self.motion is not None:
+            (n, e, d), P = self._motion_blend(tg, (n, e, d), P)
         diag = tuple(float(v) for v in np.diag(P))
         lat, lon, alt = self.frame.geodetic_tuple(n, e, d)
-        used = "+".join(sorted(self._used, key=("gnss", "predictor", "position_fix", "altitude", "zero_velocity").index)) or "none"
+        used = "+".join(sorted(self._used, key=_USED_ORDER.index)) or "none"
         self._out.append(
             FusedState(
                 tg, lat, lon, alt, n, e, d, *vel, *rpy, diag,

@@ -74,6 +74,10 @@ class Recovery:
                 x = self._kin.x.ravel()
                 dp = float(np.linalg.norm(np.asarray(z) - x[0:3]))
         self._kin_init(t, z, vel)
+        if self.drag is not None:
+            self.drag.reset()
+        if self.motion is not None:
+            self.motion.reset()
         self._emit_reset(t, "reinit", reason, filt, dp, dv)
 
     # ------------------------------------------------------------------ persistent GNSS rejection

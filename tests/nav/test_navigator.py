@@ -40,7 +40,8 @@ def test_ins_filter_is_consistent_nees_per_axis():
     nees = []
     for seed in (11, 12):
         sim = simulate_circle_flight(60.0, np.random.default_rng(seed), noise=SimNoise(gnss_corr_tau_s=0.0))
-        out = run_navigator(sim.events, NavigatorConfig(gnss_sigma_model="accuracy"))
+        # the simulated receiver has no latency: the filter must not assume one (gnss_vel_delay_s)
+        out = run_navigator(sim.events, NavigatorConfig(gnss_sigma_model="accuracy", gnss_vel_delay_s=0.0))
         fused = _fused(out, "ins")
         t, err, cov = _errors(sim, fused)
         keep = t > t[0] + 15.0  # after attitude/bias convergence
@@ -110,7 +111,7 @@ def test_bridges_8_s_blockage_with_ins():
     sim = simulate_circle_flight(60.0, np.random.default_rng(4), noise=RECEIVER)
     t0 = sim.events[0].t_s
     events = [e for e in sim.events if not (isinstance(e, GnssFix) and t0 + 40.0 < e.t_s < t0 + 48.0)]
-    out = run_navigator(events)
+    out = run_navigator(events, NavigatorConfig(gnss_vel_delay_s=0.0))  # the simulated receiver has no latency
     fused = [o for o in _fused(out, "ins") if t0 + 40.0 < o.t_s < t0 + 48.0]
     _t, err, cov = _errors(sim, fused)
     herr = np.hypot(err[:, 0], err[:, 1])
