@@ -128,10 +128,11 @@ class InsFilter:
         return self.config.gnss_delay_s if lag is None else lag
 
     def _gnss_vel_delay_s(self) -> float:
-        """The latency of the GNSS velocity: the measured one when in use, else the larger of the two configured."""
+        """The latency of the GNSS velocity: the measured one when in use (companion.nav.gnss_lag measures it from the
+        velocity), else the position's plus the velocity's own (``gnss_vel_delay_s``)."""
         est = self._gnss_lag
         lag = est.lag_s if est is not None else None
-        return max(self.config.gnss_delay_s, self.config.gnss_vel_delay_s) if lag is None else lag
+        return self.config.gnss_delay_s + self.config.gnss_vel_delay_s if lag is None else lag
 
     def _check_gnss_delay(self) -> None:
         """Before a GNSS update: when the modelled latency moved by more than ``gnss_lag.relearn_s`` since the INS
@@ -234,7 +235,7 @@ class InsFilter:
             if c.gnss_delay_s > 0 or c.gnss_vel_delay_s > 0 or self._gnss_lag is not None:
                 hist = self._hist
                 hist.append([t, *self.frame.ned_tuple(ins.lat_deg, ins.lon_deg, ins.h_m), ins.vn, ins.ve, ins.vd])
-                keep_s = max(c.gnss_delay_s, c.gnss_vel_delay_s, c.gnss_lag.max_lag_s if self._gnss_lag is not None else 0.0)
+                keep_s = max(c.gnss_delay_s + c.gnss_vel_delay_s, c.gnss_lag.max_lag_s if self._gnss_lag is not None else 0.0)
                 while hist[0][0] < t - keep_s - 0.2:
                     hist.popleft()
             f = ins.f_ned

@@ -176,6 +176,8 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
                 self._on_altitude(ev)
         elif isinstance(ev, Attitude):
             self._att = ev
+            if self._att_stale and self.mode == "ins" and self.ins is not None:
+                self._attitude_after_gap(ev)
             if self.config.ahrs_check:
                 C = dcm_from_quat(quat_from_euler(ev.roll_rad, ev.pitch_rad, ev.yaw_rad))
                 self._att_c = tuple(float(x) for x in C[0:2].ravel())

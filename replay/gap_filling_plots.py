@@ -1,0 +1,77 @@
+"""Plots of the gap-filling benchmark (replay.gap_filling): pooled RMSE per blockage length, and one 8 s blockage."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from companion.nav.navigator import NavigatorConfig, run_navigator
+from companion.nav.outputs import FusedState, PredictorPoint
+from replay.gap_filling import METHOD_LABEL, METHODS, LogData, _drop_fixes, _in_windows, _series, decimate_mask, free_ins, stats
+from replay.harness.baselines import constant_velocity, hold_last_fix, withhold_aiding
+
+
+def plot_example(path: Path, log: LogData, window: tuple[float, float], dec, cfg: NavigatorConfig) -> None:
+    """North/east track of one 8 s blockage: truth fixes and every method."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    a, b = window
+    keep = decimate_mask(log.fix_t, dec) & ~_in_windows(log.fix_t, [window])
+    events = _drop_fixes(log.events, set(log.fix_t[~keep].tolist()))
+    full = run_navigator(events, cfg)
+    alone = run_navigator(withhold_aiding(events, [window]), free_ins(cfg))
+    tq = np.arange(a, b, 0.1)
+    m = (log.fix_t >= a - 3) & (log.fix_t < b + 2)
+    avail = keep
+    fig, ax = plt.subplots(figsize=(6.5, 6))
+    ax.plot(log.fix_ned[m, 1], log.fix_ned[m, 0], "k.", ms=4, label="GNSS fixes (truth inside the blockage)")
+    ax.plot(hold_last_fix(log.fix_t[avail], log.fix_ned[avail], tq)[:, 1],
+            hold_last_fix(log.fix_t[avail], log.fix_ned[avail], tq)[:, 0], "s", ms=6, label="hold last fix")
+    cv = constant_velocity(log.fix_t[avail], log.fix_ned[avail], log.fix_vel[avail], tq)
+    ax.plot(cv[:, 1], cv[:, 0], "-", label="constant velocity")
+    pt, pn = _series(full, log.frame, PredictorPoint)
+    sel = (pt >= a) & (pt < b)
+    ax.plot(pn[sel, 1], pn[sel, 0], "-", label="KNN predictor")
+    at, an = _series(alone, log.frame, FusedState)
+    sel = (at >= a) & (at < b)
+    ax.plot(an[sel, 1], an[sel, 0], "-", label="INS alone")
+    ft, fn = _series(full, log.frame, FusedState)
+    sel = (ft >= a - 3) & (ft < b + 2)
+    ax.plot(fn[sel, 1], fn[sel, 0], "-", lw=2.5, label="KNN + INS + Kalman")
+    ax.set_xlabel("east (m)")
+    ax.set_ylabel("north (m)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(f"{log.name[:40]}\n8 s blockage at t = {a:.1f} s (GNSS {dec or 'native'} Hz)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_rmse(outdir: Path, pooled, lengths) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    outdir.mkdir(parents=True, exist_ok=True)
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for m in METHODS:
+        xs = [L for L in lengths if L in pooled and m in pooled[L]]
+        ys = [stats(np.concatenate(pooled[L][m]))["h_rmse"] for L in xs]
+        if xs:
+            ax.plot(xs, ys, "o-", label=METHOD_LABEL[m].strip("*"), lw=2.5 if m == "knn_ins_kf" else 1.2)
+    ax.set_xlabel("GNSS blockage length (s)")
+    ax.set_ylabel("horizontal RMSE (m)")
+    ax.set_yscale("log")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title("Gap filling on the shared ArduCopter logs (INS mode, pooled)")
+    fig.tight_layout()
+    fig.savefig(outdir / "gap_filling_rmse.png", dpi=120)
+    plt.close(fig)
