@@ -51,7 +51,8 @@ def gravity_nav_config(**overrides) -> NavigatorConfig:
 #: the multicopter blockage aids of the navigator's defaults (rotor drag, the loiter/hold motion prior, the u-blox
 #: velocity latency, the autopilot's heading) were chosen on the shared multicopter logs; gravity-aided cruises
 #: (aircraft, ship; simulated receivers without latency) keep the navigator they were measured with
-_NOT_A_MULTICOPTER = {"rotor_drag": False, "motion_prior": False, "gnss_vel_delay_s": 0.0, "fuse_attitude_yaw": False}
+_NOT_A_MULTICOPTER = {"rotor_drag": False, "motion_prior": False, "gnss_vel_delay_s": 0.0, "fuse_attitude_yaw": False,
+                      "fuse_flagged_tilt_in_gap": True}
 
 
 @dataclass(frozen=True, slots=True)

@@ -189,7 +189,8 @@ def blend(ned, var, prior, consistency_sigma: float):
     """The product of the filter's Gaussian (``ned``, per-axis ``var``) with the motion prior's, per axis; the filter's
     variance bounded by the INS dead-reckoning error learnt on this flight (a clean IMU drifts far less than a
     filter tuned for vibrating ones claims), the prior widened where the two disagree by more than
-    ``consistency_sigma`` combined sigmas. Returns (ned, var)."""
+    ``consistency_sigma`` combined sigmas. Returns (ned, var); the variance is that of the two estimates mixed with
+    the product's weights (as an IMM combines its models' covariances), never below the product's."""
     mean, pv, ins_var = prior
     g = consistency_sigma * consistency_sigma
     out, out_var = [], []
@@ -201,5 +202,7 @@ def blend(ned, var, prior, consistency_sigma: float):
             d = r2 / g - p
         k = p / (p + d)
         out.append(ned[i] + k * (mean[i] - ned[i]))
-        out_var.append(var[i] * (1.0 - k))
+        # claimed as a mixture of the two (each with its own variance, and their disagreement), not as the product's
+        # (p d / (p + d)): the product is only as honest as the prior's tails, which a changing flight makes heavy
+        out_var.append((1.0 - k) * var[i] + k * d + k * (1.0 - k) * r2)
     return out, out_var

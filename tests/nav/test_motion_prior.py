@@ -70,7 +70,9 @@ def test_stationary_fixes_start_no_pair():
 def test_blend_weighs_by_variance_and_widens_a_contradicted_prior():
     prior = (np.array([4.0, 4.0, 0.0]), np.array([4.0, 4.0, 4.0]), None)
     out, var = blend((0.0, 0.0, 0.0), (4.0, 4.0, 4.0), prior, consistency_sigma=3.0)
-    assert out == pytest.approx([2.0, 2.0, 0.0]) and var == pytest.approx([2.0, 2.0, 2.0])  # equal: the midpoint
+    assert out == pytest.approx([2.0, 2.0, 0.0])  # equal variances: the midpoint
+    # claimed as the two estimates mixed half and half, their 4 m disagreement included (not the product's 2 m^2)
+    assert var == pytest.approx([0.5 * 4 + 0.5 * 4 + 0.25 * 16, 0.5 * 4 + 0.5 * 4 + 0.25 * 16, 4.0])
     out, _ = blend((0.0, 0.0, 0.0), (400.0, 400.0, 400.0), prior, consistency_sigma=3.0)
     assert out[0] == pytest.approx(4.0 * 400.0 / 404.0)  # a drifting filter leans on the prior
     out, _ = blend((0.0, 0.0, 0.0), (400.0, 400.0, 400.0), (prior[0], prior[1], np.array([1.0, 1.0, 1.0])), 3.0)
