@@ -1,7 +1,17 @@
 """The navigator's INS error-state Kalman filter: covariance propagation (eq. 9), gated updates (eqs. 7, 8, 10)
 with feedback of the error estimate into the strapdown INS, and the position, velocity and attitude measurements.
 A mixin of companion.nav.navigator.Navigator (its state lives on the navigator); the 15 states are listed in
-companion.nav.outputs.INS_STATE_NAMES."""
+companion.nav.outputs.INS_STATE_NAMES.
+
+The states: position, velocity, attitude error psi, accelerometer bias and gyro bias around
+:class:`companion.nav.ins.StrapdownIns`. Errors are true minus estimate, attitude
+``C_true = (I + [psi x]) C_est``; continuous model ``dp' = dv``, ``dv' = -[f_n x] psi - C dba``,
+``psi' = -C dbg``, biases first-order Gauss-Markov. The strapdown equations run for every IMU sample
+in plain Python; the KF covariance is propagated at the 10 Hz output rate (and before each update)
+with ``Phi = I + F dt + (F dt)^2 / 2`` built from the mean specific force of the interval (eq. 9), and
+updates use the Joseph-form algebra of companion.nav.kalman (eqs. 7, 8, 10). After each update the error
+estimate is fed back into the INS and reset to zero.
+"""
 
 from __future__ import annotations
 
