@@ -3,7 +3,6 @@ blockage drawn on the map with every method."""
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +10,7 @@ import numpy as np
 from companion.nav.navigator import NavigatorConfig, run_navigator
 from companion.nav.outputs import FusedState, PredictorPoint
 from replay.gap_filling import (METHOD_LABEL, METHODS, LogData, _drop_fixes, _in_windows, _series, choose_windows,
-                                decimate_mask, stats)
+                                decimate_mask, free_ins, stats)
 from replay.harness.baselines import constant_velocity, hold_last_fix, withhold_aiding
 
 
@@ -35,8 +34,7 @@ def plot_example(path: Path, log: LogData, window: tuple[float, float], dec, cfg
     keep = decimate_mask(log.fix_t, dec) & ~_in_windows(log.fix_t, [window])
     events = _drop_fixes(log.events, set(log.fix_t[~keep].tolist()))
     full = run_navigator(events, cfg)
-    no_pred = dataclasses.replace(cfg, fuse_predictor=False)
-    alone = run_navigator(withhold_aiding(events, [window]), no_pred)
+    alone = run_navigator(withhold_aiding(events, [window]), free_ins(cfg))
     tq = np.arange(a, b, 0.1)
     m = (log.fix_t >= a - 3) & (log.fix_t < b + 2)
     avail = keep

@@ -39,3 +39,28 @@ def bumpy_map(seed: int, half_m: float, cell_m: float, n_bumps: int, width_m: tu
         w = rng.uniform(*width_m)
         g += rng.normal(0, 20) * np.exp(-((N - c[0]) ** 2 + (E - c[1]) ** 2) / (2 * w * w))
     return LocalGravityMap(GravityMap(g, ax, ax, "local_m"))
+
+
+def flight_events(sim, gnss_every: int = 1, deny_s=None) -> list:
+    """A simulated flight (companion.sim.flight) as navigator events: every IMU sample, the autopilot's attitude
+    estimate, and every ``gnss_every``-th receiver fix (none inside ``deny_s``), sorted as a replay sorts them."""
+    from companion.events import Attitude, GnssFix, ImuSample
+
+    ev = []
+    for k, t in enumerate(sim.imu.t_s):
+        ev.append(ImuSample(round(float(t), 6), tuple(map(float, sim.imu.accel_frd_mps2[k])),
+                            tuple(map(float, sim.imu.gyro_frd_radps[k])), 0))
+    for k, t in enumerate(sim.truth_attitude.t_s):
+        ev.append(Attitude(round(float(t), 6), *map(float, sim.attitude_euler_rad[k])))
+    g = sim.gnss
+    for k in range(0, len(g.t_s), gnss_every):
+        t = float(g.t_s[k])
+        if not g.has_fix[k] or (deny_s is not None and deny_s[0] <= t < deny_s[1]):
+            continue
+        v = g.vel_ned_mps[k]
+        ev.append(GnssFix(round(t, 6), 3, float(g.lat_deg[k]), float(g.lon_deg[k]), float(g.alt_msl_m[k]),
+                          float(v[0]), float(v[1]), float(v[2]), None, None, int(g.satellites[k]), float(g.hdop[k]),
+                          float(g.vdop[k]), float(g.h_acc_m[k]), float(g.v_acc_m[k]), float(g.speed_acc_mps[k]),
+                          None, None))
+    ev.sort(key=lambda e: (e.t_s, {ImuSample: 0, Attitude: 1}.get(type(e), 2)))
+    return ev

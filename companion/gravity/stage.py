@@ -45,7 +45,14 @@ def gravity_nav_config(**overrides) -> NavigatorConfig:
     'short_term' GNSS model (0.3 m) the filter leaves the cut overconfident, the matcher fixes then drag the INS
     and the matcher follows the dragged track (fix error 12 -> 360 m in 85 s) instead of 13 m mean error."""
     return NavigatorConfig(**{"gnss_sigma_model": "accuracy", "fuse_predictor": False, "fuse_autopilot_alt": True,
-                              **overrides})
+                              **_NOT_A_MULTICOPTER, **overrides})
+
+
+#: the multicopter blockage aids of the navigator's defaults (rotor drag, the loiter/hold motion prior, the u-blox
+#: velocity latency, the autopilot's heading) were chosen on the shared multicopter logs; gravity-aided cruises
+#: (aircraft, ship; simulated receivers without latency) keep the navigator they were measured with
+_NOT_A_MULTICOPTER = {"rotor_drag": False, "motion_prior": False, "gnss_vel_delay_s": 0.0, "fuse_attitude_yaw": False,
+                      "fuse_flagged_tilt_in_gap": True}
 
 
 @dataclass(frozen=True, slots=True)

@@ -5,9 +5,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from companion.constants import CHI2_2DOF_999, CHI2_3DOF_999
+from companion.nav.drag import DragConfig
 from companion.nav.gnss_lag import GnssLagConfig
 from companion.nav.hover import HoverConfig
 from companion.nav.knn_predictor import KnnConfig
+from companion.nav.motion_prior import MotionPriorConfig
 
 
 @dataclass(frozen=True)
@@ -18,7 +20,9 @@ class NavigatorConfig:
     effective white noise is far above the sensor datasheet (per-sample std ~1 m/s^2 and ~0.03 rad/s in
     the shared logs, i.e. ~0.15 m/s^2/rtHz and ~0.005 rad/s/rtHz). The defaults are twice that: chosen on
     the shared logs' in-between fill and 4/8 s blockages (replay/gap_filling.py), where they did a few per
-    cent better than 1x; there is no held-out log, so treat that tuning as in-sample.
+    cent better than 1x; there was no held-out log then, so treat that tuning as in-sample. The settings of
+    the blockage aids below (rotor drag, motion prior, yaw and flagged-tilt handling, ``gnss_vel_delay_s``)
+    were chosen on two logs (ac313, Erle PXF) with log171 held out (replay/results/gap_filling.md).
     ``predictor_sigma_scale``: a predictor point extrapolates the last fix, so its error is correlated with
     that fix, which the filter has already used; treating it as independent makes the filter
     overconfident (position NEES ~2 per axis on simulated flights). Its sigma is scaled by this factor.
@@ -30,13 +34,23 @@ class NavigatorConfig:
     fix-to-fix noise (``short_term_sigma_*`` x max(1, HDOP)) so the filter follows the receiver instead of
     averaging it; "accuracy" uses the receiver's accuracy (h_acc, or HDOP x UERE), right for white fix
     noise. The innovation gate always uses the accuracy sigma, so a glitch is judged on the receiver's own
-    error scale. ``fuse_attitude_yaw``: off by default: in the Erle log the autopilot's heading is ~90 deg
-    from the heading the GNSS-aided INS settles at, and fusing it ruins the fill; the tilt is fused.
+    error scale. ``fuse_attitude_yaw``: the autopilot's heading is fused only while the heading check below
+    has measured it consistent with GNSS, and corrected by the offset it measured (in the Erle log the
+    autopilot's heading is ~90 deg off; fused before the check flags it, it ruins the fill). At 1 Hz GNSS a
+    loitering vehicle shows the INS too little acceleration to hold its own heading (it wandered +-20 deg
+    from the autopilot's in the ac313 log), and a heading error d turns the specific force into an
+    acceleration error d |a_h| during a blockage.
     ``gnss_delay_s``: a fix stamped t describes the vehicle at t - delay (receiver latency; ArduPilot's EKF
     assumes ~0.2 s for a u-blox). Fixes and predictor points are compared with the INS state of that
-    epoch, kept in a short per-IMU-step history that follows every correction. On the shared logs the
-    IMU accelerations best match the GNSS velocity changes ~0.2 s earlier, but modelling it (0.15 s) helped
-    8 s blockages (3.8 vs 4.0 m) and hurt the 1 Hz in-between fill (0.33 vs 0.29 m), so the default is 0.
+    epoch, kept in a short per-IMU-step history that follows every correction. Modelled for positions it
+    makes the output a real-time estimate, which the 1 Hz in-between fill scores against the receiver's
+    lagged fixes (0.35 vs 0.29 m), so the default is 0: the position follows the receiver's epoch.
+    ``gnss_vel_delay_s``: the receiver's velocity describes the vehicle this much before its position does:
+    on all three 50 Hz shared logs the GNSS velocity best matches the derivative of the GNSS positions
+    0.10-0.15 s earlier (ac313 0.15, Erle 0.10, log171 0.15 s). It is compared with the INS velocity of that
+    epoch (t - gnss_delay_s - gnss_vel_delay_s) while no measured latency is in use: taken as simultaneous
+    with the position, it teaches the filter a wrong tilt and accelerometer bias during manoeuvres, which drive
+    the drift once GNSS stops (1 Hz fill 0.29 -> 0.24 m, 8 s blockages on ac313 and Erle 3.8 -> 3.4 m).
     ``ahrs_check``: the autopilot attitude is only as good as its heading. A DCM AHRS corrects tilt with
     GNSS acceleration resolved through its heading, so a wrong heading (the Erle PXF log: compass ~90 deg
     off) also corrupts its roll/pitch during manoeuvres. The navigator checks the autopilot's heading
@@ -55,15 +69,13 @@ class NavigatorConfig:
     alignment, cf. Groves 2013 sec. 14.2; the KF's psi is a small-angle state and absorbs a large heading
     error only slowly) when it differs from that by more than ``yaw_align_min_deg`` and 3 x the KF's yaw
     sigma; the yaw variance is then reset to ``yaw_align_sigma_rad``^2.
-    ``hold_prior``: during a blockage the INS error grows without bound (t^2 .. t^3), while a loitering or
-    circling multicopter stays near where it was. The navigator learns, causally from the GNSS fixes it has
-    accepted, the vehicle's mean squared displacement per axis after a lag tau (D(tau) at whole-second
-    lags up to ``hold_prior_max_lag_s``, exponential forgetting ``hold_prior_tau_s``): the last fix is then
-    an estimate of the current position with variance D(age) + fix variance, independent of the INS
-    drift. From ``hold_prior_min_age_s`` after the last fix, the output position is the product of the two
-    Gaussians (per axis: inverse-variance weights from the KF covariance and D), so it moves toward the
-    last fix only as far as the filter's own covariance says its drift exceeds the vehicle's typical
-    excursion. Output only: the INS and KF state are not changed, so aiding resumes from the INS.
+    ``fuse_flagged_tilt_in_gap``: once the heading check flags the autopilot, its tilt is fused (with the
+    inflated sigma) only while GNSS aids (no gap of ``gnss_gap_s``): in a blockage its tilt, off by degrees
+    in manoeuvres, would make the INS confident in a wrong tilt; without it the INS's own tilt uncertainty
+    grows and the motion prior takes the weight (Erle PXF: 8 s blockage 2.3 m instead of 7.0 m).
+    ``rotor_drag`` (companion.nav.drag) and ``motion_prior`` (companion.nav.motion_prior) are described in
+    their modules: the multicopter's horizontal accelerometers as an air-velocity measurement during a
+    blockage, and hold / constant velocity mixed into the output by what they were worth on this flight.
     """
 
     knn: KnnConfig = field(default_factory=KnnConfig)
@@ -80,9 +92,10 @@ class NavigatorConfig:
     predictor_sigma_scale: float = 2.0
     predictor_decorrelate: bool = True
     fuse_attitude: bool = True
-    fuse_attitude_yaw: bool = False
+    fuse_attitude_yaw: bool = True
     fuse_gnss_velocity: bool = True
     gnss_delay_s: float = 0.0
+    gnss_vel_delay_s: float = 0.15
     # measure the GNSS latency online (companion.nav.gnss_lag) and use it instead of gnss_delay_s once observable;
     # needs ahrs_check (the autopilot attitude resolves the specific force). Off for log replays (the shared logs'
     # tuning above); on for the live companion (companion.config.live_nav_defaults)
@@ -128,16 +141,6 @@ class NavigatorConfig:
     alt_sigma_m: float = 3.0
     alt_gnss_gap_s: float = 2.0
     alt_offset_tau_s: float = 60.0
-    hold_prior: bool = False
-    hold_prior_min_age_s: float = 1.5
-    hold_prior_max_lag_s: int = 60
-    hold_prior_tau_s: float = 120.0
-    # recovery (companion.nav.recovery): a stream gap (no event at all) longer than reinit_gap_s is not ticked
-    # through and re-initialises the filter at the next fix; the first fix after a GNSS gap that long resets
-    # position/velocity if outside the gate; reset_after_n_rejected consecutive (or gate_reset_s of) rejected good
-    # 3D fixes reset position/velocity to GNSS, att_reset_after_n_rejected rejected autopilot attitudes the tilt,
-    # with the fix's (the initial attitude's) variance x reset_cov_scale. An event more than future_outlier_s
-    # ahead of the stream is held until future_confirm_n consecutive events confirm the jump, else dropped.
     # zero-velocity pseudo-measurement (companion.nav.hover): while the detector says hover and no fix has come for
     # zupt_min_age_s, a zero NED velocity with zupt_sigma_mps is fused every zupt_interval_s.
     zero_velocity: bool = True
@@ -145,6 +148,21 @@ class NavigatorConfig:
     zupt_sigma_mps: float = 0.3
     zupt_interval_s: float = 1.0
     zupt_min_age_s: float = 1.5
+    fuse_flagged_tilt_in_gap: bool = False
+    gnss_gap_s: float = 1.5
+    # rotor drag (companion.nav.drag): the horizontal accelerometers of a multicopter measure its air velocity; the
+    # model is learnt while GNSS aids and fused during a blockage. Motion prior (companion.nav.motion_prior): hold and
+    # constant velocity, mixed by their learnt errors, multiplied into the output during a blockage.
+    rotor_drag: bool = True
+    drag: DragConfig = field(default_factory=DragConfig)
+    motion_prior: bool = True
+    motion: MotionPriorConfig = field(default_factory=MotionPriorConfig)
+    # recovery (companion.nav.recovery): a stream gap (no event at all) longer than reinit_gap_s is not ticked
+    # through and re-initialises the filter at the next fix; the first fix after a GNSS gap that long resets
+    # position/velocity if outside the gate; reset_after_n_rejected consecutive (or gate_reset_s of) rejected good
+    # 3D fixes reset position/velocity to GNSS, att_reset_after_n_rejected rejected autopilot attitudes the tilt,
+    # with the fix's (the initial attitude's) variance x reset_cov_scale. An event more than future_outlier_s
+    # ahead of the stream is held until future_confirm_n consecutive events confirm the jump, else dropped.
     reinit_gap_s: float = 5.0
     reset_after_rejection: bool = True
     reset_after_n_rejected: int = 30
@@ -158,7 +176,7 @@ class NavigatorConfig:
             raise ValueError("rates must be positive")
         if self.reinit_gap_s <= self.max_imu_step_s or self.future_outlier_s <= 0 or self.future_confirm_n < 1:
             raise ValueError("reinit_gap_s must exceed max_imu_step_s; future_outlier_s > 0, future_confirm_n >= 1")
-        if self.reorder_window_s < 0:
-            raise ValueError("reorder_window_s must be >= 0")
+        if self.reorder_window_s < 0 or self.gnss_vel_delay_s < 0 or self.gnss_delay_s < 0 or self.gnss_gap_s < 0:
+            raise ValueError("reorder_window_s, gnss_delay_s, gnss_vel_delay_s and gnss_gap_s must be >= 0")
         if self.gnss_sigma_model not in ("short_term", "accuracy"):
             raise ValueError("gnss_sigma_model must be 'short_term' or 'accuracy'")

@@ -1,7 +1,17 @@
 """The navigator's INS error-state Kalman filter: covariance propagation (eq. 9), gated updates (eqs. 7, 8, 10)
 with feedback of the error estimate into the strapdown INS, and the position, velocity and attitude measurements.
 A mixin of companion.nav.navigator.Navigator (its state lives on the navigator); the 15 states are listed in
-companion.nav.outputs.INS_STATE_NAMES."""
+companion.nav.outputs.INS_STATE_NAMES.
+
+The states: position, velocity, attitude error psi, accelerometer bias and gyro bias around
+:class:`companion.nav.ins.StrapdownIns`. Errors are true minus estimate, attitude
+``C_true = (I + [psi x]) C_est``; continuous model ``dp' = dv``, ``dv' = -[f_n x] psi - C dba``,
+``psi' = -C dbg``, biases first-order Gauss-Markov. The strapdown equations run for every IMU sample
+in plain Python; the KF covariance is propagated at the 10 Hz output rate (and before each update)
+with ``Phi = I + F dt + (F dt)^2 / 2`` built from the mean specific force of the interval (eq. 9), and
+updates use the Joseph-form algebra of companion.nav.kalman (eqs. 7, 8, 10). After each update the error
+estimate is fed back into the INS and reset to zero.
+"""
 
 from __future__ import annotations
 
@@ -72,8 +82,14 @@ class InsFilter:
         return True, y
 
     def _correct_ins(self, dp, dv, psi, dba, dbg) -> None:
-        """Feed an error estimate back into the INS and shift the delay history with it."""
+        """Feed an error estimate back into the INS and shift the delay history with it; the sums of the corrections
+        give the free (uncorrected) trajectory (``_ins_free``)."""
         self.ins.correct(dp, dv, psi, dba, dbg)
+        t, cs = self.ins.t_s, self._corr_sums
+        for a in range(3):
+            cs[a] += dp[a]
+            cs[3 + a] += dv[a]
+            cs[6 + a] += dv[a] * t
         for h in self._hist:
             h[1] += dp[0]
             h[2] += dp[1]
@@ -81,6 +97,13 @@ class InsFilter:
             h[4] += dv[0]
             h[5] += dv[1]
             h[6] += dv[2]
+
+    def _ins_free(self, p_ned, v_ned) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """Position and velocity of the INS as if no correction had been applied since it was initialised: each
+        correction (dp, dv) at t_k moved the position by dp + dv (t - t_k)."""
+        t, cs = self.ins.t_s, self._corr_sums
+        return (tuple(p_ned[a] - cs[a] - cs[3 + a] * t + cs[6 + a] for a in range(3)),
+                tuple(v_ned[a] - cs[3 + a] for a in range(3)))
 
     def _ins_state_at(self, t: float, delay_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """INS position (local NED) and velocity at the epoch ``t - gnss_delay_s`` a fix stamped t refers to.
@@ -113,6 +136,13 @@ class InsFilter:
         est = self._gnss_lag
         lag = est.lag_s if est is not None else None
         return self.config.gnss_delay_s if lag is None else lag
+
+    def _gnss_vel_delay_s(self) -> float:
+        """The latency of the GNSS velocity: the measured one when in use (companion.nav.gnss_lag measures it from the
+        velocity), else the position's plus the velocity's own (``gnss_vel_delay_s``)."""
+        est = self._gnss_lag
+        lag = est.lag_s if est is not None else None
+        return self.config.gnss_delay_s + self.config.gnss_vel_delay_s if lag is None else lag
 
     def _check_gnss_delay(self) -> None:
         """Before a GNSS update: when the modelled latency moved by more than ``gnss_lag.relearn_s`` since the INS
@@ -149,7 +179,11 @@ class InsFilter:
 
     def _ins_attitude_update(self, ev: Attitude) -> None:
         c = self.config
-        fuse_yaw = c.fuse_attitude_yaw and self.ahrs_consistent
+        if not self.ahrs_consistent and not c.fuse_flagged_tilt_in_gap and (
+                self._last_fix_t is None or ev.t_s - self._last_fix_t >= c.gnss_gap_s):
+            return  # a flagged autopilot's tilt is wrong by degrees in manoeuvres: without GNSS it would only mislead
+        # its heading only once the heading check has measured it consistent (before, it may be ~90 deg off)
+        fuse_yaw = c.fuse_attitude_yaw and self.ahrs_consistent and math.isfinite(self.ahrs_heading_offset_rad)
         # Tilt-only measurement: the autopilot's roll/pitch fix the gravity direction in the body frame
         # whatever its heading, so the measured attitude is built with the INS's own heading. (Built with
         # the autopilot's heading, a heading disagreement of d rotates and mixes the roll/pitch innovations
@@ -174,6 +208,8 @@ class InsFilter:
         t = ev.t_s
         self._imu_times.append(t)
         self.hover.add_imu(t, ev.accel_frd_mps2, ev.gyro_frd_radps)
+        if self.drag is not None:
+            self.drag.add_accel(ev.accel_frd_mps2)
         prev_t = self._last_imu_t
         self._last_imu_t = t
         if self._gnss_lag is not None and prev_t is not None:
@@ -206,10 +242,10 @@ class InsFilter:
             ins.coast(t - 0.02)
             self._kf_t = ins.t_s
         if ins.step(t, ev.accel_frd_mps2, ev.gyro_frd_radps) > 0:
-            if c.gnss_delay_s > 0 or self._gnss_lag is not None:
+            if c.gnss_delay_s > 0 or c.gnss_vel_delay_s > 0 or self._gnss_lag is not None:
                 hist = self._hist
                 hist.append([t, *self.frame.ned_tuple(ins.lat_deg, ins.lon_deg, ins.h_m), ins.vn, ins.ve, ins.vd])
-                keep_s = max(c.gnss_delay_s, c.gnss_lag.max_lag_s if self._gnss_lag is not None else 0.0)
+                keep_s = max(c.gnss_delay_s + c.gnss_vel_delay_s, c.gnss_lag.max_lag_s if self._gnss_lag is not None else 0.0)
                 while hist[0][0] < t - keep_s - 0.2:
                     hist.popleft()
             f = ins.f_ned
@@ -237,6 +273,8 @@ class InsFilter:
         )
         self._kf = kf
         self._kf_t = t_ins
+        self._corr_sums = [0.0] * 9  # sums of dp, dv and dv * t of the corrections since initialisation
+        self._ins_epoch += 1
         self._delay_learnt_s = self._gnss_delay_s() if self._gnss_lag is not None else None
         if not self.ahrs_consistent and math.isfinite(self.ahrs_heading_offset_rad):
             self._align_yaw(t_ins)

@@ -134,12 +134,13 @@ class HorizontalPositionMeasurement(Measurement):
 
 @dataclass(frozen=True)
 class VelocityMeasurement(Measurement):
-    """A NED velocity: GNSS ("gnss_vel", INS filter only) or the zero-velocity pseudo-measurement of a detected
-    hover ("zero_velocity", companion.nav.hover)."""
+    """A NED velocity: GNSS ("gnss_vel", INS filter only; ``delay_s`` its latency) or the zero-velocity
+    pseudo-measurement of a detected hover ("zero_velocity", companion.nav.hover)."""
 
     z_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
     sigma_mps: float = 0.3
     gate_chi2: float = CHI2_3DOF_999
+    delay_s: float | None = None
 
     def z(self):
         return np.asarray(self.z_ned_mps, dtype=float)
@@ -220,3 +221,43 @@ class AltitudeMeasurement(Measurement):
         H = np.zeros((1, 6))
         H[0, 2] = 1.0
         return H
+
+
+@dataclass(frozen=True)
+class DragMeasurement(Measurement):
+    """Rotor drag (companion.nav.drag, Leishman et al. 2014 eqs. 3-5): the horizontal specific force in body FRD,
+    ``h = -k (C^T (v - w))_xy + b`` with the learnt coefficient ``k``, wind ``w`` and accelerometer bias ``b`` (INS
+    filter only). ``R`` is the 2 x 2 noise (rows ``r_mps4``: xx, xy, yy), the fit's parameter uncertainty included."""
+
+    z_frd_mps2: tuple[float, float] = (0.0, 0.0)
+    k_per_s: float = 0.2
+    wind_ne_mps: tuple[float, float] = (0.0, 0.0)
+    bias_frd_mps2: tuple[float, float] = (0.0, 0.0)
+    r_mps4: tuple[float, float, float] = (0.04, 0.0, 0.04)
+    gate_chi2: float = CHI2_2DOF_999
+    delay_s = 0.0
+
+    def z(self):
+        return np.asarray(self.z_frd_mps2, dtype=float)
+
+    def R(self):
+        a, b, c = self.r_mps4
+        return np.array([[a, b], [b, c]])
+
+    def _air_body(self, s: InsView):
+        va = s.vel_ned_mps - np.array([self.wind_ne_mps[0], self.wind_ne_mps[1], 0.0])
+        return va, s.dcm.T @ va
+
+    def h_ins(self, s: InsView):
+        return -self.k_per_s * self._air_body(s)[1][:2] + np.asarray(self.bias_frd_mps2, dtype=float)
+
+    def H_ins(self, s: InsView):
+        """d/d(dv) = -k C^T; d/d(psi) = -k C^T [v_air x] (C_true^T = C^T (I - [psi x]))."""
+        va, _vb = self._air_body(s)
+        H = np.zeros((2, 15))
+        H[:, 3:6] = -self.k_per_s * s.dcm.T[:2]
+        H[:, 6:9] = -self.k_per_s * (s.dcm.T @ skew(va))[:2]
+        return H
+
+    def compute_ins(self, s: InsView):
+        return self.z() - self.h_ins(s), self.H_ins(s), self.R()

@@ -4,15 +4,8 @@ The paper (Aziez 2021, fig. 2, eqs. 5-10) fuses the KNN predictor's 10 Hz GNSS s
 Kalman filter; it integrates ultra-tightly at the correlator level (eqs. 11-34), which needs I/Q samples a
 flight log does not have. This module does the loosely coupled equivalent on position/velocity fixes:
 
-* **INS mode**: error-state KF (15 states: position, velocity, attitude error psi, accelerometer bias,
-  gyro bias; see :data:`companion.nav.outputs.INS_STATE_NAMES`) around
-  :class:`companion.nav.ins.StrapdownIns`. Errors are true minus estimate, attitude
-  ``C_true = (I + [psi x]) C_est``; continuous model ``dp' = dv``, ``dv' = -[f_n x] psi - C dba``,
-  ``psi' = -C dbg``, biases first-order Gauss-Markov. The strapdown equations run for every IMU sample
-  in plain Python; the KF covariance is propagated at the 10 Hz output rate (and before each update)
-  with ``Phi = I + F dt + (F dt)^2 / 2`` built from the mean specific force of the interval (eq. 9), and
-  updates use the Joseph-form algebra of companion.nav.kalman (eqs. 7, 8, 10). After each update the error estimate is fed back into
-  the INS and reset to zero.
+* **INS mode**: a 15-state error-state KF around :class:`companion.nav.ins.StrapdownIns` (eqs. 7-10; the model is
+  described in companion.nav.ins_filter).
 * **Kinematic mode**: a 6-state constant-velocity KF (white-noise acceleration) on the same
   measurements. Used when the source has no IMU, or its IMU rate is below ``min_imu_rate_hz`` (a
   telemetry log streams RAW_IMU at ~1 Hz: far too slow to integrate), or no attitude is available to
@@ -20,12 +13,11 @@ flight log does not have. This module does the loosely coupled equivalent on pos
   :attr:`Navigator.mode` / :attr:`Navigator.mode_reason`. The kinematic filter always runs alongside, so
   the navigator can fall back at once if the IMU stream stops in flight.
 
-Measurements: real GNSS positions (1-sigma from ``h_acc_m``/``v_acc_m``, else HDOP/VDOP x UERE, else a
-default), GNSS NED velocity when the receiver gives it, KNN predictor points at each 10 Hz tick after the
-last fix (with the predictor's own growing sigma), and optionally the autopilot's attitude (its AHRS keeps
-tilt from gravity and heading from the compass when GNSS is lost). Each is gated on its normalised
-innovation squared (chi-square, 3 dof); a glitch is rejected. If GNSS is rejected continuously for
-``gate_reset_s`` the filter accepts it again with its position covariance reset (a real step, not a glitch).
+Measurements (companion.nav.measurements: one ``compute(state) -> (y, H, R)`` contract, one gate): GNSS position
+and velocity, KNN predictor points at each 10 Hz tick after the last fix, the autopilot's attitude, altitude and
+PositionFix aids (companion.nav.aids, baro), the zero velocity of a hover and rotor drag in a blockage
+(companion.nav.hover, drag); the motion prior mixes hold and constant velocity into the output in a blockage
+(companion.nav.motion_prior); resets and re-initialisation are companion.nav.recovery.
 
 Event order: sources can deliver different message types slightly out of time order. Events pass a
 reorder buffer of ``reorder_window_s`` (heap on time, type priority IMU < attitude < GNSS, arrival
@@ -49,12 +41,14 @@ from companion.nav.config import NavigatorConfig
 from companion.nav.ins import StrapdownIns, dcm_from_quat, quat_from_euler
 from companion.nav.ins_filter import InsFilter
 from companion.nav.kinematic import KinematicFilter
+from companion.nav.drag import RotorDrag
+from companion.nav.motion_prior import MotionPrior
 from companion.nav.hover import HoverDetector
 from companion.nav.knn_predictor import KnnPredictor
 from companion.nav.measurements import PositionMeasurement, VelocityMeasurement
 from companion.nav.modes import Modes
-from companion.nav.monitors import AhrsHeadingCheck, HoldPrior
-from companion.nav.outputs import FrameInfo, FusedState, PredictorPoint
+from companion.nav.monitors import AhrsHeadingCheck
+from companion.nav.outputs import FrameInfo, FusedState
 from companion.events import Attitude, AutopilotAltitude, Event, GnssFix, ImuSample, PositionFix
 from companion.nav.frame import LocalFrame
 from companion.nav.gnss_lag import GnssLagEstimator
@@ -64,12 +58,11 @@ from companion.pipeline.stage import Stage
 
 __all__ = ["Navigator", "NavigatorConfig", "run_navigator"]
 
-
-
 _PRIO = {ImuSample: 0, Attitude: 1, GnssFix: 2}
+_USED_ORDER = ("gnss", "predictor", "position_fix", "altitude", "zero_velocity", "rotor_drag", "motion_prior")
 
 
-class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCheck, HoldPrior, BaroAid, Stage):
+class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCheck, BaroAid, Stage):
     """Streaming gap-filling stage: ``process(event) -> list[output]``, then ``finish()``."""
 
     def __init__(self, config: NavigatorConfig | None = None) -> None:
@@ -103,9 +96,13 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
         self._hist: deque[list[float]] = deque()  # [t, n, e, d, vn, ve, vd] per IMU step, last delay + 0.2 s
         self._gnss_lag = GnssLagEstimator(c.gnss_lag) if c.gnss_delay_estimate else None
         self._delay_learnt_s: float | None = None
+        self._corr_sums = [0.0] * 9
+        self._ins_epoch = 0
         self._monitors_init()
         self.hover = HoverDetector(c.hover)
         self._zupt_t = -math.inf
+        self.drag = RotorDrag(c.drag) if c.rotor_drag else None
+        self.motion = MotionPrior(c.motion) if c.motion_prior else None
         # kinematic filter
         self._kin: KalmanFilter | None = None
         self._kin_t = 0.0
@@ -169,6 +166,8 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
                 self._on_altitude(ev)
         elif isinstance(ev, Attitude):
             self._att = ev
+            if self._att_stale and self.mode == "ins" and self.ins is not None:
+                self._attitude_after_gap(ev)
             if self.config.ahrs_check:
                 C = dcm_from_quat(quat_from_euler(ev.roll_rad, ev.pitch_rad, ev.yaw_rad))
                 self._att_c = tuple(float(x) for x in C[0:2].ravel())
@@ -179,7 +178,6 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
                 self._att_fused_t = ev.t_s
                 self._ins_attitude_update(ev)
 
-    # ------------------------------------------------------------------ IMU
     # ------------------------------------------------------------------ GNSS
     def _on_fix(self, ev: GnssFix) -> None:
         c = self.config
@@ -210,7 +208,8 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
         if self.mode == "ins":
             accepted = self._ins_position_update(m, gnss_gap)
             if accepted and vel is not None and c.fuse_gnss_velocity and math.isfinite(vel[2]):
-                self._ins_apply(VelocityMeasurement(t, "gnss_vel", vel, c.gnss_vel_sigma_mps, c.gate_chi2))
+                self._ins_apply(VelocityMeasurement(t, "gnss_vel", vel, c.gnss_vel_sigma_mps, c.gate_chi2,
+                                                    self._gnss_vel_delay_s()))
         if self._kin is None:
             self._kin_init(t, z, vel)
         else:
@@ -225,11 +224,11 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
     def _fix_accepted(self, t: float, z, sh: float, sv: float, vel) -> None:
         self._used.add("gnss")
         self._last_fix_t = t
-        if self.config.hold_prior:
-            self._learn_motion(t, z, sh, sv)
-        self.predictor.add_fix(t, z, sh, sv, None if vel is None or not math.isfinite(vel[2]) else vel)
+        v3 = None if vel is None or not math.isfinite(vel[2]) else vel
+        if self.motion is not None:
+            self._motion_learn(t, z, v3, sh, sv)
+        self.predictor.add_fix(t, z, sh, sv, v3)
 
-    # ------------------------------------------------------------------ INS filter
     # ------------------------------------------------------------------ 10 Hz ticks
     def _run_ticks(self, t: float, inclusive: bool) -> None:
         while True:
@@ -243,24 +242,7 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
         c = self.config
         if self._reinit_pending is not None:
             return  # after a stream gap nothing is known until the next fix re-initialises
-        # predictor point (Aziez 2021: 9 points between 1 Hz fixes, continuing through blockages)
-        if self._last_fix_t is not None and tg - self._last_fix_t >= max(c.predictor_min_age_s, 1e-9):
-            p = self.predictor.predict(tg)
-            if p is not None:
-                lat, lon, alt = self.frame.geodetic_tuple(*p.ned_m)
-                self._out.append(
-                    PredictorPoint(tg, *p.ned_m, lat, lon, alt, p.sigma_h_m, p.sigma_v_m, p.age_s, p.method)
-                )
-                if c.fuse_predictor:
-                    # points from one anchor share one error: inflate R by the count fused since the fix
-                    self._n_pred_fused = self._n_pred_fused + 1 if self._pred_anchor == self._last_fix_t else 1
-                    self._pred_anchor = self._last_fix_t
-                    infl = c.predictor_sigma_scale * (math.sqrt(self._n_pred_fused) if c.predictor_decorrelate else 1.0)
-                    m = PositionMeasurement(tg, "predictor", p.ned_m, p.sigma_h_m * infl, p.sigma_v_m * infl,
-                                            gate_chi2=c.gate_chi2)
-                    ok = self._ins_position_update(m) if self.mode == "ins" else self._kin_update(m, True)
-                    if ok:
-                        self._used.add("predictor")
+        self._predictor_tick(tg)
         if self.mode == "init":
             return
         if (c.zero_velocity and self._last_fix_t is not None and tg - self._last_fix_t >= c.zupt_min_age_s
@@ -268,6 +250,8 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
             self._zero_velocity_update(tg)
         if self.mode == "ins":
             self._ins_predict(tg)
+            if self.drag is not None:
+                self._rotor_drag_tick(tg)
             ins = self.ins
             n, e, d = self.frame.ned_tuple(ins.lat_deg, ins.lon_deg, ins.h_m)
             dt = tg - ins.t_s
@@ -275,12 +259,6 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
             vel = (ins.vn, ins.ve, ins.vd)
             rpy = ins.euler()
             P = self._kf.P
-            if c.hold_prior:
-                b = self._hold_blend(tg, (n, e, d), (P[0, 0], P[1, 1], P[2, 2]))
-                if b is not None:
-                    (n, e, d), pv = b
-                    P = P.copy()
-                    P[0, 0], P[1, 1], P[2, 2] = pv
         else:
             if self._kin is None:
                 return
@@ -291,9 +269,11 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
             a = self._att
             rpy = (a.roll_rad, a.pitch_rad, a.yaw_rad) if a is not None and tg - a.t_s < 1.0 else (math.nan,) * 3
             P = self._kin.P
+        if self.motion is not None:
+            (n, e, d), P = self._motion_blend(tg, (n, e, d), P)
         diag = tuple(float(v) for v in np.diag(P))
         lat, lon, alt = self.frame.geodetic_tuple(n, e, d)
-        used = "+".join(sorted(self._used, key=("gnss", "predictor", "position_fix", "altitude", "zero_velocity").index)) or "none"
+        used = "+".join(sorted(self._used, key=_USED_ORDER.index)) or "none"
         self._out.append(
             FusedState(
                 tg, lat, lon, alt, n, e, d, *vel, *rpy, diag,

@@ -54,8 +54,9 @@ class FusedState(Event):
 
     ``mode`` is "ins" (error-state KF around the strapdown INS) or "kinematic" (constant-velocity KF,
     used when the IMU is missing or too slow). ``cov_diag`` follows :data:`INS_STATE_NAMES` or
-    :data:`KINEMATIC_STATE_NAMES`. ``measurement`` names the position measurements applied since the
-    previous output ("gnss", "predictor", "gnss+predictor", "none"); ``innovation_ned_m`` is the
+    :data:`KINEMATIC_STATE_NAMES`. ``measurement`` names the aids applied since the previous output, joined by
+    "+" ("gnss", "predictor", "position_fix", "altitude", "zero_velocity", "rotor_drag", and "motion_prior" when
+    the output position is mixed with it; "none"); ``innovation_ned_m`` is the
     innovation of the last position update applied (NaN when none), ``rejected`` how many measurements the
     innovation gate refused since the previous output. Attitude angles are NaN when unknown.
     """
@@ -87,7 +88,8 @@ class FusedState(Event):
 class MeasurementUpdate(Event):
     """One measurement offered to a Kalman filter: its innovation, normalised innovation squared and verdict.
 
-    ``kind``: "gnss_pos", "gnss_vel", "predictor", "attitude". ``filter``: "ins" or "kinematic".
+    ``kind``: "gnss_pos", "gnss_vel", "predictor", "attitude", "altitude", "position_fix", "zero_velocity",
+    "rotor_drag" (companion.nav.measurements). ``filter``: "ins" or "kinematic".
     """
 
     kind: str

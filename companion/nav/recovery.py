@@ -11,6 +11,7 @@ import math
 import numpy as np
 
 from companion.events import FixType
+from companion.nav.ins import quat_from_euler
 from companion.nav.outputs import NavigatorReset
 
 
@@ -27,6 +28,7 @@ class Recovery:
         self._fix_seen_t: float | None = None  # newest GNSS position seen, accepted or not
         self._att_reject_since: float | None = None
         self._n_att_reject_run = 0
+        self._att_stale = False  # the INS was re-initialised with an attitude from before the gap
         self.resets: dict[str, int] = {}
 
     def _emit_reset(self, t: float, kind: str, reason: str, filt: str, dp: float, dv: float) -> None:
@@ -64,6 +66,7 @@ class Recovery:
                            else t)
             self.ins.ba, self.ins.bg = ba, bg  # biases are a property of the sensor: kept
             self._kf.P[9:15, 9:15] = pb
+            self._att_stale = self._att.t_s < gap1  # its attitude is from before the gap: the next one replaces it
             filt = "ins"
             dp = float(np.linalg.norm(np.asarray(z) - p_old))
             dv = float(np.linalg.norm(np.array(self.ins.vel_ned) - v_old))
@@ -74,7 +77,27 @@ class Recovery:
                 x = self._kin.x.ravel()
                 dp = float(np.linalg.norm(np.asarray(z) - x[0:3]))
         self._kin_init(t, z, vel)
+        if self.drag is not None:
+            self.drag.reset()
+        if self.motion is not None:
+            self.motion.reset()
         self._emit_reset(t, "reinit", reason, filt, dp, dv)
+
+    def _attitude_after_gap(self, ev) -> None:
+        """The first autopilot attitude after a stream gap re-initialises the INS attitude when the re-initialisation
+        had to use one from before the gap (minutes old, and any tilt while manoeuvring): fused instead, it would be
+        an outlier for the gate (45 s cut in log171 at 1 Hz: 30 deg of pitch, every attitude rejected)."""
+        self._att_stale = False
+        c = self.config
+        self._ins_predict(max(ev.t_s, self._kf_t))
+        self.ins.q = quat_from_euler(ev.roll_rad, ev.pitch_rad, ev.yaw_rad)
+        P = self._kf.P
+        P[6:9, :] = 0.0
+        P[:, 6:9] = 0.0
+        P[6, 6] = P[7, 7] = c.init_sigma_att_rad**2
+        P[8, 8] = c.init_sigma_yaw_rad**2
+        if not self.ahrs_consistent and math.isfinite(self.ahrs_heading_offset_rad):
+            self._align_yaw(ev.t_s)
 
     # ------------------------------------------------------------------ persistent GNSS rejection
     def _gate_bookkeeping(self, t: float, ok: bool, y, sh: float, sv: float, force: bool = False) -> bool:

@@ -40,7 +40,8 @@ def test_ins_filter_is_consistent_nees_per_axis():
     nees = []
     for seed in (11, 12):
         sim = simulate_circle_flight(60.0, np.random.default_rng(seed), noise=SimNoise(gnss_corr_tau_s=0.0))
-        out = run_navigator(sim.events, NavigatorConfig(gnss_sigma_model="accuracy"))
+        # the simulated receiver has no latency: the filter must not assume one (gnss_vel_delay_s)
+        out = run_navigator(sim.events, NavigatorConfig(gnss_sigma_model="accuracy", gnss_vel_delay_s=0.0))
         fused = _fused(out, "ins")
         t, err, cov = _errors(sim, fused)
         keep = t > t[0] + 15.0  # after attitude/bias convergence
@@ -110,7 +111,7 @@ def test_bridges_8_s_blockage_with_ins():
     sim = simulate_circle_flight(60.0, np.random.default_rng(4), noise=RECEIVER)
     t0 = sim.events[0].t_s
     events = [e for e in sim.events if not (isinstance(e, GnssFix) and t0 + 40.0 < e.t_s < t0 + 48.0)]
-    out = run_navigator(events)
+    out = run_navigator(events, NavigatorConfig(gnss_vel_delay_s=0.0))  # the simulated receiver has no latency
     fused = [o for o in _fused(out, "ins") if t0 + 40.0 < o.t_s < t0 + 48.0]
     _t, err, cov = _errors(sim, fused)
     herr = np.hypot(err[:, 0], err[:, 1])
@@ -170,6 +171,47 @@ def test_sample_flight_tlog_end_to_end_through_its_8_s_outage():
     assert herr.max() < 2.0  # INS through an 8 s outage in a 25 m-radius turn at 6 m/s
 
 
+def test_velocity_latency_model_matches_a_lagged_receiver():
+    """A receiver whose velocity describes the vehicle 0.5 s before its position does (0.10-0.15 s on the shared
+    logs; longer here so that the turn, 0.9 m/s^2, changes the velocity well beyond the noise): with gnss_vel_delay_s
+    set to it the velocity is compared with the INS velocity of its epoch and its innovations shrink."""
+    from companion.sim.circle import circle_trajectory
+
+    sim = simulate_circle_flight(40.0, np.random.default_rng(8), noise=SimNoise(gnss_std_h_m=0.3, gnss_std_v_m=0.5))
+    t0 = sim.truth_t_s[0]
+
+    def lagged(e):
+        v = circle_trajectory(np.array([e.t_s - t0 - 0.5]))[1][0]
+        return dataclasses.replace(e, vel_n_mps=float(v[0]), vel_e_mps=float(v[1]), vel_d_mps=float(v[2]))
+
+    events = [lagged(e) if isinstance(e, GnssFix) else e for e in sim.events]
+    nis = []
+    for delay in (0.0, 0.5):
+        out = run_navigator(events, NavigatorConfig(gnss_vel_delay_s=delay))
+        ups = [u for u in out if isinstance(u, MeasurementUpdate) and u.kind == "gnss_vel"][50:]
+        nis.append(np.mean([u.nis for u in ups]))
+    assert nis[1] < 0.5 * nis[0], nis
+    with pytest.raises(ValueError):
+        NavigatorConfig(gnss_vel_delay_s=-0.1)
+
+
+def test_flagged_autopilot_tilt_is_not_fused_in_a_gnss_gap():
+    """Once the heading check flags the autopilot (90 deg off), its tilt is fused while GNSS aids and not in a gap."""
+    from companion.events import Attitude
+
+    sim = simulate_circle_flight(60.0, np.random.default_rng(21), noise=RECEIVER)
+    t0 = sim.truth_t_s[0]
+    events = [dataclasses.replace(e, yaw_rad=float((e.yaw_rad + np.pi / 2 + np.pi) % (2 * np.pi) - np.pi))
+              if isinstance(e, Attitude) else e for e in sim.events
+              if not (isinstance(e, GnssFix) and t0 + 45.0 <= e.t_s < t0 + 55.0)]
+    for flagged_in_gap in (False, True):
+        out = run_navigator(events, NavigatorConfig(fuse_flagged_tilt_in_gap=flagged_in_gap))
+        ups = [u.t_s for u in out if isinstance(u, MeasurementUpdate) and u.kind == "attitude"]
+        gap = [t for t in ups if t0 + 47.0 <= t < t0 + 55.0]
+        assert [t for t in ups if t0 + 35.0 <= t < t0 + 45.0]  # flagged by then, fused with GNSS
+        assert bool(gap) == flagged_in_gap
+
+
 def test_gnss_delay_model_removes_latency_error():
     """Fixes stamped 0.25 s after their epoch (receiver latency): modelling the delay must help."""
     sim = simulate_circle_flight(40.0, np.random.default_rng(8), noise=SimNoise(gnss_std_h_m=0.3, gnss_std_v_m=0.5))
@@ -205,6 +247,10 @@ def test_autopilot_heading_offset_is_detected_and_ins_heading_realigned(offset_d
     fused = [o for o in _fused(out, "ins") if o.t_s > sim.truth_t_s[0] + 20.0]
     true_yaw = circle_trajectory(np.array([o.t_s - sim.truth_t_s[0] for o in fused]))[3][:, 2]
     yaw_err = (np.array([o.yaw_rad for o in fused]) - true_yaw + np.pi) % (2 * np.pi) - np.pi
-    assert np.degrees(np.abs(yaw_err)).max() < 20.0  # yaw is not fused: the KF refines it slowly
+    assert np.degrees(np.abs(yaw_err)).max() < 20.0  # 90 deg: never fused; the KF refines the re-aligned heading
+    # the autopilot's heading is fused only once the check has confirmed it, never before it is measured
+    ups = [u for u in out if isinstance(u, MeasurementUpdate) and u.kind == "attitude"]
+    assert all(u.sigma[2] > 100.0 for u in ups if u.t_s < sim.truth_t_s[0] + 5.0)  # no heading information yet
+    assert any(u.sigma[2] < 1.0 for u in ups) == (offset_deg == 0.0)
     _t, err, _cov = _errors(sim, fused)
     assert np.sqrt((err[:, :2] ** 2).sum(axis=1).mean()) < 1.0

@@ -98,6 +98,23 @@ def test_reinitialises_after_a_stream_gap_in_both_orders(first, gnss_rate_hz):
     assert np.mean([u.accepted for u in ups]) > 0.95
 
 
+def test_reinit_takes_the_attitude_after_the_gap():
+    """The log stops while the vehicle is pitched 30 deg (as log171 at 94 s) and resumes with the fix first: the INS
+    is re-initialised with the first autopilot attitude after the gap, not the one from before it, so the autopilot's
+    attitude is accepted at once and the output is within 3 m from the 2nd fix on."""
+    from companion.events import Attitude
+
+    sim = simulate_flight(90.0, np.random.default_rng(6), noise=RECEIVER, gnss_rate_hz=1.0)
+    t0 = sim.events[0].t_s
+    events, t_fix = _cut(sim.events, t0 + 30.0, t0 + 79.0, "gnss")
+    last = max(i for i, e in enumerate(events) if isinstance(e, Attitude) and e.t_s < t0 + 30.0)
+    events[last] = dataclasses.replace(events[last], pitch_rad=events[last].pitch_rad + 0.5)
+    out = run_navigator(events)
+    att = [u.accepted for u in out if isinstance(u, MeasurementUpdate) and u.kind == "attitude" and t_fix < u.t_s < t_fix + 5]
+    assert att and np.mean(att) > 0.95
+    assert max(_err_h(sim, o) for o in _fused(out) if o.t_s >= t_fix + 2.0) < 3.0
+
+
 def test_persistent_rejection_of_a_good_fix_resets_position_and_velocity():
     sim = simulate_flight(60.0, np.random.default_rng(7), noise=RECEIVER)
     t0 = sim.events[0].t_s

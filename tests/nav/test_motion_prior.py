@@ -1,0 +1,115 @@
+"""The motion prior (companion.nav.motion_prior): its learnt statistics predict a loitering vehicle's motion with an
+honest variance, stationary fixes teach it nothing, the product with the filter weighs each by its variance, and
+on a simulated loiter with a tilted autopilot the full navigator is no worse than hold-last-fix."""
+
+import math
+
+import numpy as np
+import pytest
+
+from companion.nav.motion_prior import MotionPrior, MotionPriorConfig, blend
+from companion.nav.navigator import NavigatorConfig, run_navigator
+from companion.nav.outputs import FusedState
+from companion.sim.flight import CANBERRA_FIELD, SimConfig, simulate_flight
+from companion.sim.sensors import AttitudeEstimateModel, ImuModel
+from companion.sim.trajectory import Climb, FlightProfile, Hold, Speed, Turn
+from tests.helpers import flight_events
+
+
+def _loiter(rng, n_s=1200, sigma_v=1.0, tau_s=8.0):
+    """1 Hz positions and velocities of a loitering vehicle: an Ornstein-Uhlenbeck velocity per horizontal axis."""
+    v = np.zeros((n_s, 3))
+    a = math.exp(-1.0 / tau_s)
+    for k in range(1, n_s):
+        v[k, :2] = a * v[k - 1, :2] + rng.normal(0, sigma_v * math.sqrt(1 - a * a), 2)
+    p = np.cumsum(v, axis=0)
+    return np.arange(n_s, dtype=float), p, v
+
+
+def test_prior_is_calibrated_on_a_loiter():
+    """Predictions made causally from the learnt statistics at ages 5, 15, 30 s: normalised squared error ~1."""
+    t, p, v = _loiter(np.random.default_rng(3))
+    mp = MotionPrior(MotionPriorConfig(variance_scale=1.0, tau_s=600.0))
+    z2 = {5: [], 15: [], 30: []}
+    for k in range(len(t)):
+        mp.add_fix(t[k], p[k], v[k], (0.01, 0.01, 0.01))
+        if k < 300:  # learning
+            continue
+        for age in z2:
+            if k + age < len(t):
+                mean, var, _ins = mp.predict(t[k] + age)
+                z2[age].append(float(np.mean((p[k + age, :2] - mean[:2]) ** 2 / var[:2])))
+    for age, z in z2.items():
+        assert 0.6 < np.mean(z) < 1.6, (age, np.mean(z))
+    # at 30 s a loiter is better predicted by holding than by extrapolating the velocity
+    mean, _var, _ = mp.predict(t[-1] + 30.0)
+    hold, cv = p[-1], p[-1] + v[-1] * 30.0
+    assert np.linalg.norm(mean[:2] - hold[:2]) < np.linalg.norm(mean[:2] - cv[:2]) or np.allclose(hold, cv)
+
+
+def test_no_prior_before_min_age_or_without_pairs():
+    mp = MotionPrior()
+    assert mp.predict(10.0) is None
+    mp.add_fix(0.0, (0, 0, 0), (0, 0, 0), (0.1, 0.1, 0.1))
+    assert mp.predict(5.0) is None  # one fix: no pair yet
+    with pytest.raises(ValueError):
+        MotionPriorConfig(min_pairs=0.0)
+
+
+def test_stationary_fixes_start_no_pair():
+    """Two minutes on the ground, then moving: the statistics come from the moving fixes only."""
+    mp = MotionPrior(MotionPriorConfig(tau_s=1e6))
+    for k in range(120):
+        mp.add_fix(float(k), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.01,) * 3, stationary=True)
+    for k in range(120, 140):
+        mp.add_fix(float(k), (3.0 * (k - 120), 0.0, 0.0), (3.0, 0.0, 0.0), (0.01,) * 3)
+    assert mp._w[5] == pytest.approx(15.0, rel=1e-3)  # pairs start at the moving fixes 120 .. 134 only
+    assert mp._hh[5, 0] / mp._w[5] > 100.0  # moving 15 m in 5 s, not the ground's zero
+
+
+def test_blend_weighs_by_variance_and_widens_a_contradicted_prior():
+    prior = (np.array([4.0, 4.0, 0.0]), np.array([4.0, 4.0, 4.0]), None)
+    out, var = blend((0.0, 0.0, 0.0), (4.0, 4.0, 4.0), prior, consistency_sigma=3.0)
+    assert out == pytest.approx([2.0, 2.0, 0.0])  # equal variances: the midpoint
+    # claimed as the two estimates mixed half and half, their 4 m disagreement included (not the product's 2 m^2)
+    assert var == pytest.approx([0.5 * 4 + 0.5 * 4 + 0.25 * 16, 0.5 * 4 + 0.5 * 4 + 0.25 * 16, 4.0])
+    out, _ = blend((0.0, 0.0, 0.0), (400.0, 400.0, 400.0), prior, consistency_sigma=3.0)
+    assert out[0] == pytest.approx(4.0 * 400.0 / 404.0)  # a drifting filter leans on the prior
+    out, _ = blend((0.0, 0.0, 0.0), (400.0, 400.0, 400.0), (prior[0], prior[1], np.array([1.0, 1.0, 1.0])), 3.0)
+    assert out[0] == pytest.approx(4.0 * 1.0 / 5.0)  # ... unless its own dead-reckoning record says it does not drift
+    out, _ = blend((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), prior, consistency_sigma=1.0)
+    # 4 m apart at a combined sigma of sqrt(5) m: the prior is widened to agree at 1 sigma (variance 15)
+    assert out[0] == pytest.approx(4.0 * 1.0 / 16.0)
+
+
+def _loiter_flight(seed):
+    """Tight circles (1.2 m/s, radius 4 m) for 4 minutes; the autopilot's tilt is off by ~2 deg for minutes."""
+    legs = [Hold(5.0), Climb(15.0, rate_mps=2.5), Hold(3.0), Speed(1.2, max_accel_mps2=0.5),
+            *[Turn(360.0, 4.0)] * 12, Speed(0.0), Hold(5.0)]
+    cfg = SimConfig(imu=ImuModel(accel_noise_mps2=0.3, gyro_noise_radps=0.005, accel_bias_sigma_mps2=0.05), imu2=None,
+                    attitude=AttitudeEstimateModel(roll_pitch_sigma_rad=math.radians(2.0), tau_s=300.0))
+    return simulate_flight(FlightProfile(legs, CANBERRA_FIELD), seed=seed, config=cfg)
+
+
+def test_full_navigator_no_worse_than_hold_on_a_loiter():
+    """A 30 s blockage on four simulated loiters (seeds 1-4), pooled as the benchmark pools a log's blockages."""
+    deny = (170.0, 200.0)
+    sq = {True: [], False: [], "hold": []}
+    for seed in (1, 2, 3, 4):
+        sim = _loiter_flight(seed)
+        events = flight_events(sim, gnss_every=5, deny_s=deny)
+        g = sim.gnss
+        last = max(k for k in range(0, len(g.t_s), 5) if g.t_s[k] < deny[0])
+        hold_ne = CANBERRA_FIELD.to_ned_m(g.lat_deg[last], g.lon_deg[last], g.alt_msl_m[last])[:2]
+        for on in (True, False):
+            cfg = NavigatorConfig(gnss_vel_delay_s=0.0, motion_prior=on)  # the simulated receiver has no latency
+            fs = [o for o in run_navigator(events, cfg) if isinstance(o, FusedState) and deny[0] <= o.t_s < deny[1]]
+            ned = CANBERRA_FIELD.to_ned_m(np.array([o.lat_deg for o in fs]), np.array([o.lon_deg for o in fs]),
+                                          np.array([o.alt_msl_m for o in fs]))
+            tr = sim.profile.sample(np.array([o.t_s for o in fs]))
+            truth = CANBERRA_FIELD.to_ned_m(tr.lat_deg, tr.lon_deg, tr.alt_msl_m)[:, :2]
+            sq[on] += list(np.sum((ned[:, :2] - truth) ** 2, axis=1))
+        sq["hold"] += list(np.sum((truth - hold_ne) ** 2, axis=1))
+    rmse = {k: float(np.sqrt(np.mean(v))) for k, v in sq.items()}
+    assert rmse[False] > 1.3 * rmse["hold"], rmse  # the INS alone loses to holding the last fix ...
+    assert rmse[True] <= 1.1 * rmse["hold"], rmse  # ... the motion prior keeps the navigator within 10 % of it
