@@ -174,3 +174,28 @@ def test_apply_correction_moves_the_error_with_the_reference():
     f.apply_correction((-100.0, 0.0))  # the navigator moved its reference 100 m south
     e1 = f.feed(1.0, float(MAP.interp_ne(5.0, 0.0)), (5.0, 0.0), (5.0, 0.0), 1.0)
     assert e1.err_ne_m[0] == pytest.approx(e0.err_ne_m[0] - 100.0, abs=5.0)
+
+
+def test_attitude_held_by_a_reference_gives_the_velocity_random_walk_of_its_tilt_error():
+    """InsErrorSpec.attitude_tau_s > 0 (an AHRS-held attitude): no Schuler loop, psi a Gauss-Markov process, and the
+    velocity error variance driven by a tilt error of sigma, tau is the integral of g psi:
+    Var(dv)(t) = 2 g^2 sigma^2 tau (t - tau (1 - exp(-t / tau))) from a stationary start."""
+    from companion.gravity.sequential import (G0_MPS2, InsErrorSpec, MapErrorSpec, N_NL, IPSI, IV, continuous_noise,
+                                              discretise, prior_covariance)
+
+    sig, tau = 3.5e-4, 60.0
+    ins = InsErrorSpec(accel_bias_ug=0.0, accel_vrw_ug_rthz=0.0, init_vel_sigma_mps=0.0, attitude_tau_s=tau,
+                       attitude_tilt_sigma_rad=sig, attitude_heading_sigma_rad=2 * sig)
+    cfg = SeqGravConfig(ins=ins)
+    A = error_dynamics(np.radians(45.0), (0.0, 0.0), (0.0, 0.0), 0.0, 1e9, attitude_tau_s=tau)
+    assert A[N_NL + IV, N_NL] == 0.0 and A[N_NL + IPSI, N_NL + IPSI] == pytest.approx(-1.0 / tau)
+    P = prior_covariance(cfg, np.eye(2))
+    P[N_NL + IV:N_NL + IV + 2] = 0.0
+    P[:, N_NL + IV:N_NL + IV + 2] = 0.0
+    Phi, Qd = discretise(A, continuous_noise(ins, MapErrorSpec(), 1e9), 1.0)
+    t_end = 1800
+    for _ in range(t_end):
+        P = Phi @ P @ Phi.T + Qd
+    want = 2 * G0_MPS2**2 * sig**2 * tau * (t_end - tau * (1 - np.exp(-t_end / tau)))
+    assert P[N_NL + IV, N_NL + IV] == pytest.approx(want, rel=0.03)
+    assert np.sqrt(P[N_NL + IPSI, N_NL + IPSI]) == pytest.approx(sig, rel=0.01)  # stationary
