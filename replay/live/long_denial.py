@@ -102,6 +102,24 @@ def run_once(a, variant: str, work: Path) -> dict:
             "h_acc_m": np.array([r["h_acc_m"] for r in gi]), "gravity": grav, "latency": lat, "wall_s": wall, "lag": lag}
 
 
+def _ins_run(a, work: Path) -> dict:
+    """The INS-alone run, reused from ``work`` when the same scenario was flown there before (it does not depend on
+    the aided run's matcher or settings)."""
+    key = [a.hours, a.speed_up, a.cruise_speed, a.origin, a.line_km, a.spacing_km, a.gnss_off_s, a.sigma_mgal, a.seed,
+           a.imu_hz, a.gnss_hz, a.sensors, str(Path(a.map).resolve())]
+    cache = work / "ins_runs.json"
+    known = json.loads(cache.read_text()) if cache.exists() else []
+    for entry in known:
+        if entry["key"] == key:
+            print("ins: reused from an earlier run of the same scenario in", work, flush=True)
+            r = entry["run"]
+            return {**r, **{k: np.array(r[k]) for k in ("t_s", "err_m", "fix_type", "h_acc_m")}, "reused": True}
+    r = run_once(a, "ins", work)
+    known.append({"key": key, "run": {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in r.items()}})
+    cache.write_text(json.dumps(known))
+    return r
+
+
 def _at(run, t_s):
     i = np.searchsorted(run["t_s"], t_s)
     return float(run["err_m"][min(i, run["t_s"].size - 1)]) if run["t_s"].size else float("nan")
@@ -143,7 +161,7 @@ def main(argv=None) -> int:
     a.name = a.name or a.sensors
     work = Path(a.work)
     work.mkdir(parents=True, exist_ok=True)
-    runs = {v: run_once(a, v, work) for v in ("aided", "ins")}
+    runs = {"aided": run_once(a, "aided", work), "ins": _ins_run(a, work)}
     valid = {k: r["lag"]["valid"] for k, r in runs.items()}
     cut = a.gnss_off_s
     scored = {k: r for k, r in runs.items() if valid[k] and r["t_s"].size}
@@ -195,7 +213,9 @@ def main(argv=None) -> int:
         f"NAMED_VALUE_FLOAT, map value at the truth + N(0, {a.sigma_mgal:g} mGal). `companion run` ({stage_text}; "
         "barometric altitude from GLOBAL_POSITION_INT as the vertical aid) injects GPS_INPUT; the simulator scores every "
         f"GPS_INPUT against its truth. Played at x{a.speed_up:g}; wall time aided {runs['aided']['wall_s']:.0f} s, "
-        f"INS {runs['ins']['wall_s']:.0f} s.",
+        f"INS {runs['ins']['wall_s']:.0f} s"
+        + (" (the INS-alone run of this scenario from an earlier invocation, same flight and seed)."
+           if runs["ins"].get("reused") else "."),
         "",
         "Playback lag (a run whose processing fell behind its input by more than max_lag_s is invalid and not scored):",
         "",
