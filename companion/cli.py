@@ -413,7 +413,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--gravity-place", metavar="LAT,LON", help="where the flight starts on the map (default: its centre)")
     g.add_argument("--gravity-sigma-mgal", type=float, default=1.0, help="simulated gravimeter noise (default 1 mGal)")
     g.add_argument("--gravity-seed", type=int, default=0, help="simulated gravimeter noise seed (default 0)")
-    g.add_argument("--matcher", choices=("viterbi", "knn", "iccp"), default="viterbi", help="gravity matcher (default viterbi)")
+    g.add_argument("--matcher", choices=("viterbi", "knn", "iccp", "sequential"), default="viterbi",
+                   help="gravity matcher (default viterbi); sequential: the filter updated by every reading (slow vehicles)")
     g.add_argument("--gravity-accept-all", action="store_true",
                    help="fuse every matcher fix; by default a fix is fused only if its window saw map signal over >= 2 "
                         "map cells of track (companion.gravity.stage.FixAcceptance)")

@@ -87,12 +87,27 @@ class GravityConfig:
     navigator as position measurements. Off while ``map`` is empty."""
 
     map: str = ""  # gravity anomaly grid (netCDF, mGal) covering the area flown
-    matcher: str = "viterbi"  # viterbi | knn | iccp
+    matcher: str = "viterbi"  # viterbi | knn | iccp (window matchers) | sequential (every reading, slow vehicles)
     named_value: str = "GRAV"  # NAMED_VALUE_FLOAT.name of the readings (1-10 characters)
     sigma_mgal: float = 1.0  # gravimeter noise per reading (matcher likelihood, acceptance test)
     feed_spacing_m: float = 0.0  # average readings over this much track per matcher sample; 0: one map cell
     accept_min_track_cells: float = 2.0  # fix acceptance: matcher window >= this many map cells of track
     accept_min_signal_ratio: float = 1.0  # ... and map signal along it >= this x sigma_mgal; 0 and 0: accept all
+    # matcher = "sequential" (companion.gravity.sequential_stage): the filter's particles and the error sources of
+    # the vehicle's INS as the filter assumes them (1 sigma; defaults: marine grade, Liu 2019 sec. 4.1)
+    seq_particles: int = 1000
+    seq_gyro_bias_degph: float = 0.01
+    seq_accel_bias_ug: float = 100.0
+    seq_gyro_arw_deg_rthr: float = 0.001
+    seq_accel_vrw_ug_rthz: float = 10.0
+    seq_init_vel_sigma_mps: float = 0.05
+    # > 0: the navigator's attitude is held by the autopilot's AHRS (fused attitude): its error's time constant and
+    # sigmas replace the gyro terms in the filter's INS model (companion.gravity.sequential.InsErrorSpec)
+    seq_attitude_tau_s: float = 0.0
+    seq_attitude_tilt_sigma_rad: float = 0.0
+    seq_attitude_heading_sigma_rad: float = 0.0
+    seq_noise_corr_s: float = 1.0  # the gravimeter's noise correlation time (its output filter; 1 s: white at 1 Hz)
+    seq_min_gain: float = 0.1  # a fix goes out when the filter is this fraction more certain than the navigator
 
 
 @dataclass(frozen=True)
@@ -151,6 +166,10 @@ _RANGES: dict[str, tuple[float, float]] = {
     "record.flush_interval_s": (0.05, 3600.0), "record.segment_s": (0.0, 86400.0), "record.max_total_mb": (0.0, 1e7),
     "gravity.accept_min_track_cells": (0.0, 1e4), "gravity.accept_min_signal_ratio": (0.0, 1e9),
     "gravity.sigma_mgal": (1e-3, 1e4),
+    "gravity.seq_particles": (50, 20_000), "gravity.seq_gyro_bias_degph": (0.0, 1e4), "gravity.seq_accel_bias_ug": (0.0, 1e6),
+    "gravity.seq_gyro_arw_deg_rthr": (0.0, 100.0), "gravity.seq_accel_vrw_ug_rthz": (0.0, 1e6),
+    "gravity.seq_init_vel_sigma_mps": (1e-4, 100.0), "gravity.seq_noise_corr_s": (0.0, 3600.0),
+    "gravity.seq_min_gain": (0.0, 0.99),
     "navigator.imu_index": (0, 3), "navigator.gnss_instance": (0, 1), "navigator.gnss_delay_s": (0.0, 1.0),
     "navigator.gnss_vel_delay_s": (0.0, 1.0),
     "navigator.reorder_window_s": (0.0, 2.0), "navigator.max_imu_step_s": (1e-3, 1.0),
@@ -317,6 +336,9 @@ def _validate_gravity(g: GravityConfig) -> None:
         raise ConfigError("gravity.named_value must be 1-10 characters (NAMED_VALUE_FLOAT.name)")
     if not g.sigma_mgal > 0:
         raise ConfigError(f"gravity.sigma_mgal must be > 0, got {g.sigma_mgal:g}")
+    if g.seq_attitude_tau_s > 0 and not (g.seq_attitude_tilt_sigma_rad > 0 and g.seq_attitude_heading_sigma_rad > 0):
+        raise ConfigError("gravity.seq_attitude_tau_s > 0 needs seq_attitude_tilt_sigma_rad and "
+                          "seq_attitude_heading_sigma_rad > 0 (the attitude reference's errors)")
     for k in ("feed_spacing_m", "accept_min_track_cells", "accept_min_signal_ratio"):
         if not getattr(g, k) >= 0:
             raise ConfigError(f"gravity.{k} must be >= 0, got {getattr(g, k):g}")

@@ -70,25 +70,30 @@ class InsErrorSpec:
     init_vel_sigma_mps: float = 0.05
     init_tilt_sigma_rad: float = float(np.radians(0.1 / 60))
     init_heading_sigma_rad: float = float(np.radians(0.5 / 60))
+    # > 0: the attitude is held by an attitude reference (an AHRS the navigator fuses) whose errors are first-order
+    # Gauss-Markov with this time constant and these sigmas; the gyro terms and the Schuler loop then do not apply
+    attitude_tau_s: float = 0.0
+    attitude_tilt_sigma_rad: float = 0.0
+    attitude_heading_sigma_rad: float = 0.0
 
 
 @dataclass(frozen=True)
 class MapErrorSpec:
-    """Map-minus-sensor misfit as a first-order Gauss-Markov process in distance. From the real ship-minus-satellite
-    residuals (GMT example 3, MANIFEST sec. 4): std 5.7 mGal, lag correlation 0.90 at 3.3 km, 0.51 at 16.5 km,
-    0.16 at 33 km -> correlation length ~25 km, and the structure function of a 5.7 mGal / 25 km FOGM at 0.3-33 km.
-    The series is not stationary, though: its 30 km windows have means from -3.6 to +19.5 mGal and STDs from 0.5
-    to 6.9. The filter takes a wider level, 8 mGal, with the measured rate of change (2 sigma^2 / L per metre, the
-    increment variance, is the same for 8 mGal / 50 km as for 5.7 / 25 km). Measured on the marine benchmark
-    (12 seeds, AK and Tasman): aided / INS 0.61 and 0.53 with 97 and 96 % within 2 h_acc, against 0.67 and 0.54
-    with 93 and 95 % for 5.7 / 25 km."""
+    """Map-minus-sensor misfit: a first-order Gauss-Markov process in distance plus a short-scale white part, fitted
+    to the structure function D(lag) = E[(r(x + lag) - r(x))^2] of the real ship-minus-satellite residuals (GMT
+    example 3, MANIFEST sec. 4; std 5.7 mGal): measured D = 0.83, 2.0, 3.6, 6.1, 9.6, 17, 27, 36, 43, 47, 51 mGal^2 at
+    0.33, 1, 2, 3.3, 5, 10, 16.5, 25, 33, 50, 80 km against 2 sigma^2 (1 - exp(-lag / L)) + 2 white^2 = 0.84, 2.2, 4.1,
+    6.4, 9.4, 17, 25, 33, 39, 47, 53 for sigma 5.3 mGal, L 28 km, white 0.3 mGal. Only increments matter once the
+    level is learnt (while GNSS pins the filter); the series' 30 km windows have means from -3.6 to +19.5 mGal, which
+    the level and its 5.3 mGal wander cover. Chosen on the marine benchmark's tuning seeds (replay.gravity.marine
+    TUNING_SEEDS, AK and Tasman together): aided / INS 0.46 with 94.7 % within 2 h_acc, against 0.49 / 94.6 % for the
+    8 mGal / 50 km / 0.6 mGal model it replaces (which overstated D by 1.3-2x at every lag)."""
 
-    sigma_mgal: float = 8.0
-    corr_length_m: float = 50_000.0
+    sigma_mgal: float = 5.3
+    corr_length_m: float = 28_000.0
     min_speed_mps: float = 0.5  # below this the misfit is taken as constant in time over min_speed * dt
-    # short-scale part: the residual series' 330 m increments (std 0.91 mGal) leave at most ~0.6 mGal of
-    # uncorrelated misfit at that spacing; readings closer than white_corr_length_m share it
-    white_sigma_mgal: float = 0.6
+    # short-scale part (shared by the readings within white_corr_length_m, the residual series' sample spacing)
+    white_sigma_mgal: float = 0.3
     white_corr_length_m: float = 330.0
 
 
@@ -101,10 +106,12 @@ class SeqGravConfig:
     resample_frac: float = 0.5  # resample when N_eff < resample_frac * N
     roughen: float = 0.1  # position kernel bandwidth (fraction of the population std) after resampling
     pos_noise_m_rts: float = 0.05  # direct position random walk (numerical floor), m / sqrt(s)
-    # readings are not independent at 1 Hz: a marine gravimeter's output is filtered (time constant ~ tens of s)
-    # and the short-scale misfit is shared over white_corr_length_m; each reading's white variance is inflated by
-    # n = max(1, noise_corr_s / dt, white_corr_length_m / (speed dt)) so n correlated readings count as one
-    noise_corr_s: float = 30.0
+    # readings are not independent at 1 Hz: each white part is inflated by the number of readings that share one
+    # sample of it, so n correlated readings count as one --
+    #   R = sigma^2 max(1, noise_corr_s / dt) + white_sigma^2 max(1, white_corr_length_m / (speed dt)),
+    # sigma the reading's own noise (correlated over noise_corr_s: a gravimeter's output filter, 1 s for a white
+    # 1 Hz sensor, tens of s for a filtered marine gravimeter) and white_sigma the short-scale map misfit
+    noise_corr_s: float = 1.0
     init_pos_sigma_m: float = 10.0  # prior 1-sigma per axis when the caller gives no covariance
     ins: InsErrorSpec = field(default_factory=InsErrorSpec)
     map_error: MapErrorSpec = field(default_factory=MapErrorSpec)
@@ -217,10 +224,14 @@ class SequentialGravityFilter:
         me = self.cfg.map_error
         return me.corr_length_m / max(speed_mps, me.min_speed_mps)
 
-    def _n_corr(self, speed_mps: float, dt_s: float) -> float:
-        """Readings sharing one white error sample (see SeqGravConfig.noise_corr_s)."""
-        L = self.cfg.map_error.white_corr_length_m
-        return max(1.0, self.cfg.noise_corr_s / dt_s, L / max(speed_mps * dt_s, 1e-3))
+    def _white_var(self, sigma_mgal: float, speed_mps: float, dt_s: float) -> tuple[float, float]:
+        """(R for the update, R of one reading): white variances inflated by the readings that share one sample of
+        them (see SeqGravConfig.noise_corr_s)."""
+        me = self.cfg.map_error
+        s2, w2 = float(sigma_mgal) ** 2, me.white_sigma_mgal**2
+        n_s = max(1.0, self.cfg.noise_corr_s / dt_s)
+        n_w = max(1.0, me.white_corr_length_m / max(speed_mps * dt_s, 1e-3))
+        return s2 * n_s + w2 * n_w, s2 + w2
 
     def _ensure_tile(self, ref_ne, est_err=None) -> None:
         pts = ref_ne - self.be.positions()
@@ -239,11 +250,15 @@ class SequentialGravityFilter:
 
     # -- public ------------------------------------------------------------------------------------------
     def feed(self, t_s: float, g_mgal: float, ref_pos_ne_m, ref_vel_ne_mps, sigma_mgal: float, *,
-             ref_cov_ne_m2=None, heading_rad: float | None = None, lat_deg: float | None = None) -> SeqGravEstimate | None:
+             ref_cov_ne_m2=None, heading_rad: float | None = None, lat_deg: float | None = None,
+             eotvos_from_reference: bool = True, anchor: bool | None = None) -> SeqGravEstimate | None:
         """One reading. ``ref_*`` is the reference solution at t_s whose error is estimated; ``ref_cov_ne_m2`` the
         navigator's own 2x2 covariance of it (optional; at least as good as ``anchor_h_sigma_m`` pins the filter to
-        the reference, e.g. with GNSS). Returns None for a reading that cannot be used (non-finite, not after the
-        previous one)."""
+        the reference, e.g. with GNSS). ``eotvos_from_reference``: the reading was Eotvos-corrected with the
+        reference velocity (its velocity error leaves an Eotvos error in the reading); False when the sender
+        corrected it with a velocity of its own. ``anchor``: None pins the filter whenever ``ref_cov_ne_m2`` is within
+        ``anchor_h_sigma_m``; False never (the covariance is then a prior only). Returns None for a reading that
+        cannot be used (non-finite, not after the previous one)."""
         c0 = time.process_time()
         cfg = self.cfg
         ref = np.asarray(ref_pos_ne_m, float).reshape(2)
@@ -258,7 +273,8 @@ class SequentialGravityFilter:
             heading_rad = float(np.arctan2(vel[1], vel[0])) if speed > 0.5 or self._last is None else self._last[2]
         lat = self._lat(ref[0], lat_deg)
         pos_cov = self._prior_pos_cov(ref_cov_ne_m2)
-        anchored = ref_cov_ne_m2 is not None and np.sqrt(np.trace(pos_cov)) <= cfg.anchor_h_sigma_m
+        anchored = (anchor is not False and ref_cov_ne_m2 is not None
+                    and np.sqrt(np.trace(pos_cov)) <= cfg.anchor_h_sigma_m)
         status: Status = "ok"
         if self.t_s is None:  # first reading: prior around the reference
             self.P_ins = prior_covariance(cfg, pos_cov)
@@ -278,12 +294,13 @@ class SequentialGravityFilter:
         self.t_s = float(t_s)
 
         H = np.zeros(N_LIN)
-        H[IV:IV + 2] = -eotvos_jacobian_mgal_per_mps(vel, lat)
+        if eotvos_from_reference:
+            H[IV:IV + 2] = -eotvos_jacobian_mgal_per_mps(vel, lat)
         H[IB] = 1.0
         m_prev = self.be.moments()[0]
         self._ensure_tile(ref, m_prev)
-        r_raw = float(sigma_mgal) ** 2 + cfg.map_error.white_sigma_mgal**2
-        res = self.be.update(self.tile, ref, float(g_mgal), H, r_raw * self._n_corr(speed, dt_s), r_raw)
+        r_upd, r_raw = self._white_var(sigma_mgal, speed, dt_s)
+        res = self.be.update(self.tile, ref, float(g_mgal), H, r_upd, r_raw)
         m, cov, bc, n_eff, b_mean, b_var = self.be.moments()
         if res is None:
             status = "off_map"
@@ -326,9 +343,17 @@ class SequentialGravityFilter:
                                float(bc), sig_ratio, nis_mean, self.reinit_count, ins_h, b_mean,
                                time.process_time() - c0)
 
-    def apply_correction(self, delta_ne_m) -> None:
-        """The reference was moved by delta_ne_m (closed-loop reset of the INS): its error moves with it."""
-        self.be.shift(-np.asarray(delta_ne_m, float))
+    def apply_correction(self, delta_ne_m, delta_vel_ne_mps=None) -> None:
+        """The reference was moved by delta_ne_m, its velocity by delta_vel_ne_mps (a closed-loop correction of the
+        navigator, e.g. when it fused this filter's fix): the estimated errors move with it."""
+        d = np.asarray(delta_ne_m, float).reshape(2)
+        dv = np.zeros(2) if delta_vel_ne_mps is None else np.asarray(delta_vel_ne_mps, float).reshape(2)
+        if self.t_s is None or not (np.all(np.isfinite(d)) and np.all(np.isfinite(dv))):
+            return
+        self.be.shift_errors(d, dv)  # error = reference - truth
+        if self._last is not None:  # the previous reference as if it had been corrected already
+            ref0, vel0, head0, lat0 = self._last
+            self._last = (ref0 + d, vel0 + dv, head0, lat0)
 
     def ins_alone_cov_ne_m2(self) -> np.ndarray:
         return self.P_ins[:2, :2].copy()
@@ -343,7 +368,7 @@ class SequentialGravityFilter:
         tau_b = self._tau_b(0.5 * (speed + float(np.hypot(*vel0))))
         nsub = int(np.ceil(dt_total / cfg.max_step_s))
         dt = dt_total / nsub
-        A = error_dynamics(np.radians(lat0), vmid, acc, head0, tau_b)
+        A = error_dynamics(np.radians(lat0), vmid, acc, head0, tau_b, attitude_tau_s=cfg.ins.attitude_tau_s)
         Phi, Qd = discretise(A, continuous_noise(cfg.ins, cfg.map_error, tau_b), dt)
         qn = cfg.pos_noise_m_rts**2 * dt
         for _ in range(nsub):

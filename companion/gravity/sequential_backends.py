@@ -38,8 +38,13 @@ def eotvos_jacobian_mgal_per_mps(vel_ne_mps, lat_deg: float) -> np.ndarray:
 
 
 def error_dynamics(lat_rad: float, vel_ne_mps, acc_ne_mps2, heading_rad: float, tau_b_s: float,
-                   R: float = WGS84_A_M) -> np.ndarray:
-    """Continuous A for [drN, drE | dsN, dsE, dvN, dvE, psiN, psiE, psiD, bgx, bgy, bgz, bax, bay, b_map]."""
+                   R: float = WGS84_A_M, attitude_tau_s: float = 0.0) -> np.ndarray:
+    """Continuous A for [drN, drE | dsN, dsE, dvN, dvE, psiN, psiE, psiD, bgx, bgy, bgz, bax, bay, b_map].
+
+    attitude_tau_s > 0: an INS whose attitude is held by an attitude reference (the companion's navigator fuses the
+    autopilot's AHRS): psi is that reference's error, first-order Gauss-Markov with this time constant, not the
+    integral of the gyro errors; the Schuler feedback through the attitude is cut (the reference, not the INS's own
+    position, sets the vertical)."""
     vN, vE = float(vel_ne_mps[0]), float(vel_ne_mps[1])
     aN, aE = float(acc_ne_mps2[0]), float(acc_ne_mps2[1])
     c, s = np.cos(heading_rad), np.sin(heading_rad)
@@ -51,13 +56,16 @@ def error_dynamics(lat_rad: float, vel_ne_mps, acc_ne_mps2, heading_rad: float, 
     rN, rE, sN, sE, vn, ve, pn, pe, pd, gx, gy, gz, ax, ay, b = range(N_ALL)
     A[rN, vn] = A[rE, ve] = A[sN, vn] = A[sE, ve] = 1.0
     # dv' = f x psi + C ba - (g/R) ds, f = (aN, aE, -g)
-    A[vn, sN] = A[ve, sE] = -g / R
     A[vn, pe], A[vn, pd], A[vn, ax], A[vn, ay] = g, aE, c, -s
     A[ve, pn], A[ve, pd], A[ve, ax], A[ve, ay] = -g, -aN, s, c
-    # psi' = -w x psi - C bg
-    A[pn, pe], A[pn, pd], A[pn, gx], A[pn, gy] = wz, -wy, -c, s
-    A[pe, pn], A[pe, pd], A[pe, gx], A[pe, gy] = -wz, wx, -s, -c
-    A[pd, pn], A[pd, pe], A[pd, gz] = wy, -wx, -1.0
+    if attitude_tau_s > 0:  # attitude held by a reference: its error, Gauss-Markov
+        A[pn, pn] = A[pe, pe] = A[pd, pd] = -1.0 / attitude_tau_s
+    else:
+        A[vn, sN] = A[ve, sE] = -g / R
+        # psi' = -w x psi - C bg
+        A[pn, pe], A[pn, pd], A[pn, gx], A[pn, gy] = wz, -wy, -c, s
+        A[pe, pn], A[pe, pd], A[pe, gx], A[pe, gy] = -wz, wx, -s, -c
+        A[pd, pn], A[pd, pe], A[pd, gz] = wy, -wx, -1.0
     A[b, b] = -1.0 / tau_b_s
     return A
 
@@ -65,7 +73,11 @@ def error_dynamics(lat_rad: float, vel_ne_mps, acc_ne_mps2, heading_rad: float, 
 def continuous_noise(spec: InsErrorSpec, mspec: MapErrorSpec, tau_b_s: float) -> np.ndarray:
     q = np.zeros(N_ALL)
     q[N_NL + IV:N_NL + IV + 2] = (spec.accel_vrw_ug_rthz * UG_MPS2) ** 2
-    q[N_NL + IPSI:N_NL + IPSI + 3] = (np.radians(spec.gyro_arw_deg_rthr) / 60.0) ** 2
+    if spec.attitude_tau_s > 0:  # stationary reference errors: q = 2 sigma^2 / tau
+        q[N_NL + IPSI:N_NL + IPSI + 2] = 2.0 * spec.attitude_tilt_sigma_rad**2 / spec.attitude_tau_s
+        q[N_NL + IPSI + 2] = 2.0 * spec.attitude_heading_sigma_rad**2 / spec.attitude_tau_s
+    else:
+        q[N_NL + IPSI:N_NL + IPSI + 3] = (np.radians(spec.gyro_arw_deg_rthr) / 60.0) ** 2
     q[N_NL + IB] = 2.0 * mspec.sigma_mgal**2 / tau_b_s
     return np.diag(q)
 
@@ -84,8 +96,9 @@ def prior_covariance(cfg: SeqGravConfig, pos_cov_ne_m2: np.ndarray) -> np.ndarra
     d = np.zeros(N_ALL)
     o = N_NL
     d[o + IV:o + IV + 2] = s.init_vel_sigma_mps**2
-    d[o + IPSI:o + IPSI + 2] = s.init_tilt_sigma_rad**2
-    d[o + IPSI + 2] = s.init_heading_sigma_rad**2
+    aided = s.attitude_tau_s > 0
+    d[o + IPSI:o + IPSI + 2] = (s.attitude_tilt_sigma_rad if aided else s.init_tilt_sigma_rad) ** 2
+    d[o + IPSI + 2] = (s.attitude_heading_sigma_rad if aided else s.init_heading_sigma_rad) ** 2
     d[o + IBG:o + IBG + 3] = (s.gyro_bias_degph * DEGPH_RADPS) ** 2
     d[o + IBA:o + IBA + 2] = (s.accel_bias_ug * UG_MPS2) ** 2
     d[o + IB] = cfg.map_error.sigma_mgal**2
@@ -213,8 +226,10 @@ class _Mpf:
         self.w = np.full(self.n, 1.0 / self.n)
         return True
 
-    def shift(self, delta_ne_m) -> None:
-        self.xn = self.xn - np.asarray(delta_ne_m, float)
+    def shift_errors(self, d_pos_ne_m, d_vel_ne_mps) -> None:
+        """Every particle's position error changes by d_pos_ne_m and its velocity error by d_vel_ne_mps."""
+        self.xn = self.xn + np.asarray(d_pos_ne_m, float)
+        self.xl[:, IV:IV + 2] += np.asarray(d_vel_ne_mps, float)
 
 
 class _Pmf:
@@ -333,7 +348,8 @@ class _Pmf:
         self.b = np.where(np.isfinite(bb), bb, float(np.nansum(B * W) / max(np.sum(W), 1e-300)))
         return True
 
-    def shift(self, delta_ne_m) -> None:
-        d = np.asarray(delta_ne_m, float)
-        self.pts = self.pts - d
-        self.centre = self.centre - d
+    def shift_errors(self, d_pos_ne_m, d_vel_ne_mps) -> None:
+        """The grid moves by d_pos_ne_m (the point-mass filter has no velocity states)."""
+        d = np.asarray(d_pos_ne_m, float)
+        self.pts = self.pts + d
+        self.centre = self.centre + d

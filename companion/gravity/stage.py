@@ -25,7 +25,7 @@ import numpy as np
 from companion.events import Event, GravityReading, PositionFix
 from companion.gravity.maps import LocalGravityMap
 from companion.gravity.matchers.base import Matcher, MatchResult
-from companion.gravity.placement import Placement
+from companion.gravity.placement import MapView, Placement
 from companion.inject import InjectConfig, Injector
 from companion.nav.frame import LocalFrame
 from companion.nav.navigator import NavigatorConfig
@@ -163,14 +163,13 @@ class GravityMatchStage(Stage):
                  sigma_floor_m: float | None = None, source: str | None = None, *, geographic: bool = False,
                  feed_spacing_m: float | None = None, acceptance: FixAcceptance | None = None,
                  sigma_mgal: float | None = None, navigator_prior: bool = True) -> None:
-        if geographic and lmap.frame is None:
-            raise ValueError("geographic matching needs a geographic map")
         if feed_spacing_m is not None and not feed_spacing_m > 0:
             raise ValueError("feed_spacing_m must be > 0")
         self.lmap, self.matcher = lmap, matcher
         self.matcher_name = matcher.name  # as run: with the navigator prior once the first window is full
         self.placement = placement or Placement()
         self.geographic = bool(geographic)
+        self.view = MapView(lmap, self.placement, self.geographic)
         self.cell_m = float(matcher.cell_m) if matcher.cell_m is not None else float(min(lmap.cell_size_m()))
         self.sigma_floor_m = float(sigma_floor_m if sigma_floor_m is not None else self.cell_m)
         self.source = source or f"gravity:{matcher.name}"
@@ -215,25 +214,11 @@ class GravityMatchStage(Stage):
 
     def _map_sample(self, s: FusedState) -> np.ndarray:
         """(north, east, v_north, v_east) of a navigator state in map metres (velocity: map metres per second)."""
-        if self.geographic:
-            ne = np.array(self.lmap.xy_to_ne(s.lon_deg, s.lat_deg), float)
-            n1, e1, _ = self._frame.to_ned_m(s.lat_deg, s.lon_deg, s.alt_msl_m)
-            lat2, lon2, _ = self._frame.to_geodetic(np.array([n1 + s.vel_n_mps, e1 + s.vel_e_mps, 0.0]))
-            vel = np.array(self.lmap.xy_to_ne(float(lon2), float(lat2)), float) - ne  # 1 s of motion on the map
-            return np.concatenate([ne, vel])
-        n, e, _ = self._frame.to_ned_m(s.lat_deg, s.lon_deg, s.alt_msl_m)
-        pl = self.placement
-        return np.concatenate([pl.to_map(np.array([n, e])), pl.to_map(np.array([s.vel_n_mps, s.vel_e_mps])) - pl.to_map(np.zeros(2))])
+        return self.view.state(s, self._frame)
 
     def _to_geodetic(self, map_ne: np.ndarray) -> tuple[float, float, np.ndarray]:
         """lat, lon and the navigator-frame NE of a map position."""
-        if self.geographic:
-            lon, lat = self.lmap.ne_to_xy(map_ne[0], map_ne[1])
-            ne = self._frame.to_ned_m(float(lat), float(lon), 0.0)[:2]
-            return float(lat), float(lon), ne
-        ne = self.placement.to_flight(map_ne)
-        lat, lon, _ = self._frame.to_geodetic(np.array([ne[0], ne[1], 0.0]))
-        return float(lat), float(lon), ne
+        return self.view.to_geodetic(map_ne, self._frame)
 
     def _reading(self, r: GravityReading, a: FusedState, b: FusedState, xa: np.ndarray, xb: np.ndarray) -> list[Event]:
         w = (r.t_s - a.t_s) / (b.t_s - a.t_s) if b.t_s > a.t_s else 1.0
@@ -289,8 +274,7 @@ class GravityMatchStage(Stage):
         return [rec, PositionFix(t, lat, lon, sig, sig, self.source)]
 
     def metadata(self) -> dict[str, str]:
-        where = ("geographic (lat/lon on the map's own area)" if self.geographic else
-                 f"origin_ne_m={tuple(round(v, 1) for v in self.placement.origin_ne_m)} rot={self.placement.rotation_deg:g}")
+        where = self.view.describe()
         acc = self.acceptance
         return {"matcher": self.matcher_name, "readings_fed": str(self.n_fed), "fixes": str(self.n_fixes),
                 "failed": str(self.n_failed), "rejected": str(self.n_rejected), "sigma_floor_m": f"{self.sigma_floor_m:g}",
@@ -304,8 +288,9 @@ class GravityMatchStage(Stage):
                 f"{self.n_rejected} rejected by the acceptance test, {self.n_failed} failed"]
 
 
-#: Matchers the CLI offers (online, through Matcher.feed).
-MATCHERS = ("viterbi", "knn", "iccp")
+#: Matchers the CLI offers: window matchers (online, through Matcher.feed) and the sequential filter
+#: (companion.gravity.sequential_stage: every reading, for slow vehicles).
+MATCHERS = ("viterbi", "knn", "iccp", "sequential")
 
 
 def make_matcher(name: str, lmap: LocalGravityMap, sigma_mgal: float = 1.0, cell_m: float | None = None) -> Matcher:
@@ -323,6 +308,8 @@ def make_matcher(name: str, lmap: LocalGravityMap, sigma_mgal: float = 1.0, cell
         from companion.gravity.matchers.gao_iccp import IccpMatcher
 
         return IccpMatcher(lmap)
+    if name == "sequential":
+        raise ValueError("the sequential filter is a stage of its own (companion.gravity.sequential_stage), not a Matcher")
     raise ValueError(f"unknown matcher {name!r} (choose from {', '.join(MATCHERS)})")
 
 
@@ -333,11 +320,12 @@ def gravity_replay_pipeline(sink, lmap: LocalGravityMap, denial: GnssDenial, *,
                             sigma_mgal: float = 1.0, seed: int = 0, period_s: float = 1.0,
                             sigma_floor_m: float | None = None, inject_config=None,
                             nav_config: NavigatorConfig | None = None,
-                            acceptance: FixAcceptance | None = FixAcceptance()) -> Pipeline:
+                            acceptance: FixAcceptance | None = FixAcceptance(), seq_config=None) -> Pipeline:
     """The pipeline of a gravity-aided replay with GNSS denied (see the module docstring): the denial in front of
     the navigator, then the simulated gravimeter, the match stage, the shadow injector and the error stage.
 
-    matcher: a name of `MATCHERS`, a Matcher, or None for the unaided (INS-only) reference. The flight lies on the
+    matcher: a name of `MATCHERS` ("sequential": the sequential filter, settings ``seq_config``, a
+    companion.gravity.sequential.SeqGravConfig), a Matcher, or None for the unaided (INS-only) reference. The flight lies on the
     map by `placement`, else it starts at place_lat_lon on a geographic map (default: the map's centre / local
     origin). gravimeter: the simulated gravimeter (default: seeded Gaussian noise of sigma_mgal);
     simulate_gravimeter=False when the event stream brings its own GravityReading events."""
@@ -352,14 +340,19 @@ def gravity_replay_pipeline(sink, lmap: LocalGravityMap, denial: GnssDenial, *,
         if simulate_gravimeter:
             grav = gravimeter or SimulatedGravimeter(lmap, placement, np.random.default_rng(seed), sigma_mgal=sigma_mgal)
             stages.append(GravitySimStage(grav, period_s))
-        m = make_matcher(matcher, lmap, sigma_mgal) if isinstance(matcher, str) else matcher
-        stages.append(GravityMatchStage(lmap, m, placement, sigma_floor_m=sigma_floor_m, acceptance=acceptance))
+        if matcher == "sequential":
+            from companion.gravity.sequential_stage import SequentialGravityStage
+
+            stages.append(SequentialGravityStage(lmap, seq_config, placement, sigma_mgal=sigma_mgal, seed=seed))
+        else:
+            m = make_matcher(matcher, lmap, sigma_mgal) if isinstance(matcher, str) else matcher
+            stages.append(GravityMatchStage(lmap, m, placement, sigma_floor_m=sigma_floor_m, acceptance=acceptance))
     stages += [Injector(inject_config or InjectConfig(mode="shadow")), DenialErrorStage(denial)]
     return build_pipeline(sink, nav_config=nav_config or gravity_nav_config(), filters=[GnssDenialStage(denial)],
                           extra_stages=stages)
 
 
-def live_gravity_stage(config) -> GravityMatchStage:
+def live_gravity_stage(config) -> Stage:
     """The match stage of a live vehicle (``[gravity]`` of companion.config.GravityConfig): a geographic map,
     positions through latitude/longitude, readings averaged over one map cell of track unless set otherwise, and the
     fix acceptance test. Raises ValueError / MapFormatError with the reason on a bad map."""
@@ -369,6 +362,11 @@ def live_gravity_stage(config) -> GravityMatchStage:
     if gmap.axes != "geographic_deg":
         raise ValueError("a live vehicle needs a geographic (longitude/latitude) gravity map")
     lmap = LocalGravityMap.around(gmap)
+    if config.matcher == "sequential":
+        from companion.gravity.sequential_stage import SequentialGravityStage, seq_config_of
+
+        return SequentialGravityStage(lmap, seq_config_of(config), geographic=True, sigma_mgal=config.sigma_mgal,
+                                      source=f"gravity:{config.named_value}:sequential", min_gain=config.seq_min_gain)
     matcher = make_matcher(config.matcher, lmap, config.sigma_mgal)
     acc = FixAcceptance(config.accept_min_track_cells, config.accept_min_signal_ratio)
     stage = GravityMatchStage(lmap, matcher, geographic=True, acceptance=acc, sigma_mgal=config.sigma_mgal,

@@ -100,6 +100,9 @@ class Runtime:
         self.shed: dict[str, int] = defaultdict(int)  # load shed when behind: imu_in, imu_out, batches, episodes
         self._behind = False
         self._behind_at = 0.0  # perf_counter time the loop was last found behind
+        self.lag_max_s = 0.0  # longest an input event waited between its arrival and its processing (wall s)
+        self.events_late = 0  # input events that waited longer than inject.max_lag_s
+        self.events_in = 0
         self._queue: asyncio.Queue | None = None
         self._stop_requested = False
         self._rx: tuple[float, str] | None = None
@@ -179,8 +182,15 @@ class Runtime:
                         if self._behind and time.perf_counter() - self._behind_at > CAUGHT_UP_AFTER_S:
                             self._behind = False
                             self._say(logging.INFO, f"caught up with the link; shed so far: {self._shed_text()}")
+                    max_lag = self.config.inject.max_lag_s
                     for ev, arrival_s, trigger in work:
                         # each event is judged by when its own bytes arrived, merged or not
+                        waited = time.perf_counter() - arrival_s
+                        if waited > self.lag_max_s:
+                            self.lag_max_s = waited
+                        if waited > max_lag:
+                            self.events_late += 1  # older than a state may be when sent: the run fell behind
+                        self.events_in += 1
                         self._rx = (arrival_s, trigger)
                         self.injector.arrival_s = arrival_s
                         self.pipeline.process(ev)
@@ -289,6 +299,8 @@ class Runtime:
             meta[f"link.{k}"] = str(v)
         for k, v in sorted(self.shed.items()):
             meta[f"shed.{k}"] = str(v)
+        meta["lag.max_s"] = f"{self.lag_max_s:.3f}"
+        meta["lag.events_over_max_lag"] = str(self.events_late)
         return meta
 
     def summary_lines(self) -> list[str]:
@@ -299,6 +311,9 @@ class Runtime:
         lines.append(f"link         {self.link.messages_in} messages in; events: {ls or 'none'}")
         if self.shed.get("episodes"):
             lines.append(f"load shed    behind the link {self.shed['episodes']} times: {self._shed_text()}")
+        lines.append(f"lag          input processed at most {self.lag_max_s:.3f} s after it arrived; "
+                     f"{self.events_late} of {self.events_in} events beyond inject.max_lag_s "
+                     f"{self.config.inject.max_lag_s:g} s")
         for trig, vals in sorted(self.latency_s.items()):
             lines.append(
                 f"latency      {trig} -> GPS_INPUT: p50 {percentile_ms(vals, 50):.2f} ms, "

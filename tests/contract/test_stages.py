@@ -9,6 +9,8 @@ import math
 import pytest
 
 from companion.events import Event, StatusText
+from companion.gravity.sequential import SeqGravConfig
+from companion.gravity.sequential_stage import SequentialGravityStage
 from companion.gravity.stage import FixAcceptance, GravityMatchStage, gravity_replay_pipeline
 from companion.inject import Injector
 from companion.nav import Navigator
@@ -19,7 +21,8 @@ from companion.sources import read_events
 from tests.conftest import SAMPLE_LOG
 from tests.helpers import Collect, bumpy_map, subclasses
 
-STAGES = {Navigator, Injector, GravityMatchStage, GnssDenialStage, DenialErrorStage, GravitySimStage}
+STAGES = {Navigator, Injector, GravityMatchStage, SequentialGravityStage, GnssDenialStage, DenialErrorStage,
+          GravitySimStage}
 
 
 def _bumpy_map():
@@ -32,10 +35,12 @@ def events():
     return [e for e in evs if e.t_s <= evs[0].t_s + 90.0]
 
 
-def _run(events):
+def _run(events, matcher="viterbi"):
     sink = Collect()
-    pipe = gravity_replay_pipeline(sink, _bumpy_map(), GnssDenial(40.0), matcher="viterbi", acceptance=FixAcceptance(),
-                                   sigma_mgal=0.5)
+    # the sequential filter on the drone's 40 m circles: a fine tile and short signal window for the 25 m map
+    seq = SeqGravConfig(n_particles=200, tile_cell_m=10.0, tile_half_m=1200.0, tile_margin_m=300.0, signal_window_m=200.0)
+    pipe = gravity_replay_pipeline(sink, _bumpy_map(), GnssDenial(40.0), matcher=matcher, acceptance=FixAcceptance(),
+                                   sigma_mgal=0.5, seq_config=seq)
     for ev in events:
         pipe.process(ev)
     pipe.finish()
@@ -45,14 +50,18 @@ def _run(events):
 def test_every_stage_of_the_package_is_under_contract_and_in_the_replay_pipeline(events):
     product = {c for c in subclasses(Stage) if c.__module__.startswith("companion.")}
     assert product == STAGES
-    pipe, _ = _run(events[:2000])
-    assert {type(s) for s in pipe.stages} == STAGES
+    in_pipelines = set()
+    for matcher in ("viterbi", "sequential"):
+        pipe, _ = _run(events[:2000], matcher)
+        in_pipelines |= {type(s) for s in pipe.stages}
+    assert in_pipelines == STAGES
 
 
-def test_stage_contract(events):
-    pipe, items = _run(events)
+@pytest.mark.parametrize("matcher,record", [("viterbi", "MatchRecord"), ("sequential", "SequentialRecord")])
+def test_stage_contract(events, matcher, record):
+    pipe, items = _run(events, matcher)
     seen = {type(o) for o in items}
-    assert {"FusedState", "GpsInputRecord", "GravityReading", "MatchRecord", "NavError"} <= {c.__name__ for c in seen}
+    assert {"FusedState", "GpsInputRecord", "GravityReading", record, "NavError"} <= {c.__name__ for c in seen}
     for o in items:
         assert isinstance(o, Event) and isinstance(o.topic, str) and o.topic.startswith("/") and math.isfinite(o.t_s)
         assert o.recorded
@@ -66,7 +75,7 @@ def test_stage_contract(events):
         out = stage.process(StatusText(events[-1].t_s + 1.0, 6, "an item this stage has no use for"))
         assert isinstance(out, list)
     # the same input gives the same outputs (compute times aside)
-    _, again = _run(events)
+    _, again = _run(events, matcher)
 
     def key(o):
         d = o.to_dict()

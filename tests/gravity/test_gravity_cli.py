@@ -58,3 +58,35 @@ def test_cli_gravity_options_need_each_other(tmp_path):
                           str(tmp_path / "x.mcap"), "--deny-gnss-after", "10"], capture_output=True, text=True, timeout=60)
     assert res.returncode == 2 and "needs --gravity-map" in res.stderr
     assert not (tmp_path / "x.mcap").exists()
+
+
+def test_cli_gravity_replay_with_the_sequential_filter(tmp_path):
+    """--matcher sequential: one /gravity/sequential record per reading (the simulated readings start at the cut),
+    pinned to the navigator while its last GNSS fix is fresh, then the drone's 200 m circuits on a 2' map say
+    no_signal and send no fix; the same replay twice gives the same fixes and GPS_INPUT."""
+    import json
+
+    res, out = _replay(tmp_path, "s", "--matcher", "sequential")
+    assert res.returncode == 0, res.stderr
+    assert "sequential-mpf" in res.stdout and "fixes sent" in res.stdout
+    recs = [json.loads(p) for _t, _ns, p in iter_payloads(out, "/gravity/sequential")]
+    topics = {t.topic: t.count for t in summarize(out).topics}
+    assert len(recs) == topics["/input/gravity"] >= 60
+    st = [r["status"] for r in recs]
+    k = st.index("no_signal")  # the readings start at the cut: pinned while the last fix is fresh, then no signal
+    assert k >= 1 and set(st[:k]) == {"anchored"} and set(st[k:]) == {"no_signal"}
+    assert not any(r["sent"] for r in recs)
+    assert topics.get("/input/position_fix", 0) == 0
+    res2, out2 = _replay(tmp_path, "s2", "--matcher", "sequential")
+    assert res2.returncode == 0
+
+    def strip(payloads):
+        out = []
+        for _t, _ns, p in payloads:
+            d = json.loads(p)
+            d.pop("compute_time_s", None)
+            out.append(d)
+        return out
+
+    assert strip(iter_payloads(out, "/gravity/sequential")) == strip(iter_payloads(out2, "/gravity/sequential"))
+    assert list(iter_payloads(out, "/inject/gps_input")) == list(iter_payloads(out2, "/inject/gps_input"))

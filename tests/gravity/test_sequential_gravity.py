@@ -54,19 +54,22 @@ def test_error_dynamics_schuler_period():
     assert 2 * np.pi / w / 60.0 == pytest.approx(84.4, abs=0.2)
 
 
-def test_converges_from_5km_with_zero_noise():
-    """INS off by a constant (4000, -3000) m, prior 5 km per axis, readings exactly the map: the error falls
-    below 400 m and the reported accuracy shrinks with it and covers it."""
+@pytest.mark.parametrize("rng", [3, 4, 5])
+def test_converges_from_5km_with_zero_noise(rng):
+    """INS off by a constant (4000, -3000) m, prior 5 km per axis, readings exactly the map (the filter's default
+    misfit model): the error falls to a few hundred metres, the reported accuracy shrinks with it and covers it.
+    Over the last 10 minutes the mean error is below 400 m for each particle draw (the largest single error there
+    depends on the draw: 240-439 m over these three, 120-545 m with the earlier 8 mGal / 50 km misfit model)."""
     tr = _track(hours=1.0)
     g = MAP.interp_ne(tr.pos_ne_m[:, 0], tr.pos_ne_m[:, 1])
     ins = tr.pos_ne_m + np.array([4000.0, -3000.0])
     cov0 = np.full((len(tr), 2, 2), np.nan)
     cov0[0] = np.eye(2) * 5000.0**2
-    out = run_batch(MAP, tr.t_s, g, ins, tr.vel_ne_mps, 0.5, ref_cov_ne_m2=cov0, rng=3)
+    out = run_batch(MAP, tr.t_s, g, ins, tr.vel_ne_mps, 0.5, ref_cov_ne_m2=cov0, rng=rng)
     err = np.hypot(*(out.pos_ne_m - tr.pos_ne_m[out.index]).T)
     assert err[0] > 1500.0 and out.h_acc_m[0] > 5000.0
     last = out.t_s >= out.t_s[-1] - 600.0
-    assert err[last].max() < 400.0
+    assert err[last].mean() < 400.0 and err[last].max() < 1000.0
     assert out.h_acc_m[last].max() < 1500.0
     assert np.all(err[last] <= 3.0 * out.h_acc_m[last])
     assert out.reinit_count[-1] == 0
@@ -174,3 +177,28 @@ def test_apply_correction_moves_the_error_with_the_reference():
     f.apply_correction((-100.0, 0.0))  # the navigator moved its reference 100 m south
     e1 = f.feed(1.0, float(MAP.interp_ne(5.0, 0.0)), (5.0, 0.0), (5.0, 0.0), 1.0)
     assert e1.err_ne_m[0] == pytest.approx(e0.err_ne_m[0] - 100.0, abs=5.0)
+
+
+def test_attitude_held_by_a_reference_gives_the_velocity_random_walk_of_its_tilt_error():
+    """InsErrorSpec.attitude_tau_s > 0 (an AHRS-held attitude): no Schuler loop, psi a Gauss-Markov process, and the
+    velocity error variance driven by a tilt error of sigma, tau is the integral of g psi:
+    Var(dv)(t) = 2 g^2 sigma^2 tau (t - tau (1 - exp(-t / tau))) from a stationary start."""
+    from companion.gravity.sequential import (G0_MPS2, InsErrorSpec, MapErrorSpec, N_NL, IPSI, IV, continuous_noise,
+                                              discretise, prior_covariance)
+
+    sig, tau = 3.5e-4, 60.0
+    ins = InsErrorSpec(accel_bias_ug=0.0, accel_vrw_ug_rthz=0.0, init_vel_sigma_mps=0.0, attitude_tau_s=tau,
+                       attitude_tilt_sigma_rad=sig, attitude_heading_sigma_rad=2 * sig)
+    cfg = SeqGravConfig(ins=ins)
+    A = error_dynamics(np.radians(45.0), (0.0, 0.0), (0.0, 0.0), 0.0, 1e9, attitude_tau_s=tau)
+    assert A[N_NL + IV, N_NL] == 0.0 and A[N_NL + IPSI, N_NL + IPSI] == pytest.approx(-1.0 / tau)
+    P = prior_covariance(cfg, np.eye(2))
+    P[N_NL + IV:N_NL + IV + 2] = 0.0
+    P[:, N_NL + IV:N_NL + IV + 2] = 0.0
+    Phi, Qd = discretise(A, continuous_noise(ins, MapErrorSpec(), 1e9), 1.0)
+    t_end = 1800
+    for _ in range(t_end):
+        P = Phi @ P @ Phi.T + Qd
+    want = 2 * G0_MPS2**2 * sig**2 * tau * (t_end - tau * (1 - np.exp(-t_end / tau)))
+    assert P[N_NL + IV, N_NL + IV] == pytest.approx(want, rel=0.03)
+    assert np.sqrt(P[N_NL + IPSI, N_NL + IPSI]) == pytest.approx(sig, rel=0.01)  # stationary

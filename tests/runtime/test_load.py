@@ -85,3 +85,11 @@ def test_behind_the_link_sheds_imu_and_never_sends_a_stale_state(sample_events):
     meta = rt.metadata()
     assert int(meta["shed.imu_samples_coalesced"]) > 0
     assert any(line.startswith("load shed") for line in rt.summary_lines())
+    # the run says it fell behind its input: the longest wait and the batches beyond max_lag_s
+    assert 0 < rt.events_late <= rt.events_in and rt.lag_max_s > max_lag
+    assert int(meta["lag.events_over_max_lag"]) == rt.events_late
+    lag_line = next(line for line in rt.summary_lines() if line.startswith("lag "))
+    from replay.live.long_denial import LAG_RE
+
+    m = LAG_RE.search(lag_line)
+    assert m and int(m.group(2)) == rt.events_late and float(m.group(4)) == max_lag
