@@ -214,6 +214,7 @@ class TlogReader(LogReader):
             raise SourceError(f"{self.path}: not a readable telemetry log ({err.__class__.__name__}: {err})") from None
         self._wanted = set(WANTED_TYPES)
         self._decoder = MavlinkDecoder()
+        self._msg_end = 0  # file offset just after the last frame the parser returned
 
     def offset(self) -> int:
         try:
@@ -226,6 +227,7 @@ class TlogReader(LogReader):
             msg = self._read_message(self._log.recv_msg)
             if msg is None:
                 return None
+            self._msg_end = self.offset()
             mtype = msg.get_type()
             if mtype in self._wanted or mtype == "BAD_DATA":
                 return self._decoder.decode(msg, msg._timestamp)
@@ -238,6 +240,10 @@ class TlogReader(LogReader):
         if pending:
             self.info.warnings.append(
                 f"truncated: the file ends {pending} bytes into a MAVLink frame (at byte {self.size_bytes - pending})")
+        elif 0 < self.size_bytes - self._msg_end and self.offset() >= self.size_bytes:
+            # pymavlink reads a record's 8-byte time stamp and stops quietly when fewer are left (or no frame follows)
+            self.info.warnings.append(f"truncated: the file ends {self.size_bytes - self._msg_end} bytes into a record "
+                                      f"(its time stamp, at byte {self._msg_end})")
         bad = self._decoder.dropped.get("bad frame", 0)
         if bad:
             self.info.warnings.append(f"skipped {bad} corrupt frames (bad CRC or garbage between frames)")

@@ -11,6 +11,8 @@ import hashlib
 import os
 import time
 
+import pytest
+
 from replay.fuzz.mutate import TWO64_NS_AS_US, _put_fmt
 from replay.fuzz.properties import check_mcap
 from tests.fuzz.conftest import one_line_error, replay_bytes, run_cli
@@ -155,11 +157,15 @@ def test_concatenated_logs_replay_both(clean, tmp_path):
     assert not check_mcap(out)
 
 
-def test_tlog_cut_mid_frame_exits_3(clean, tmp_path):
+@pytest.mark.parametrize("into", [13, 3, 8], ids=["frame", "time_stamp", "after_time_stamp"])
+def test_tlog_cut_mid_record_exits_3(clean, tmp_path, into):
+    """Cut 5 bytes into a frame, 3 bytes into a record's 8-byte time stamp, or right after it: pymavlink ends quietly
+    on a short time stamp (the fuzz found exit 0 there)."""
     c = clean["ac357-phoenix-mission2@45%"]
     f = c.parsed().frames[len(c.parsed().frames) // 2]
-    res, _, out = replay_bytes(tmp_path, c.data[:f.start + 5], suffix=".tlog")
+    res, _, out = replay_bytes(tmp_path, c.data[:f.offset + into], suffix=".tlog")
     assert res.returncode == 3, (res.returncode, res.stdout[-400:])
+    assert "truncated" in res.stdout, res.stdout[-400:]
     assert not check_mcap(out)
 
 
