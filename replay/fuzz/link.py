@@ -365,6 +365,7 @@ class LiveResult:
     inaccurate: int = 0
     max_err_ratio: float = 0.0
     fresh_after_faults: int = 0  # fresh GPS_INPUT in the quiet window after the last fault
+    hearing_judged: bool = True  # False when a SIGTERM is one of the faults: the process stops before any quiet window
     traceback: str = ""
     mcap: str = ""
     stderr_tail: list[str] = field(default_factory=list)
@@ -399,6 +400,7 @@ def run_scenario(name: str, faults: list[Fault], *, transport: str = "tcp", work
             peer.play(lambda now: now >= end_faults + quiet_s or comp.proc.poll() is not None, faults, t0)
             quiet_from = t0_mono + (last + 1.0)  # what arrives after the last fault has had 1 s to pass
             res.fresh_after_faults = len([g for g in peer.fresh_since(quiet_from)])
+            res.hearing_judged = sig is None
             if comp.proc.poll() is not None and peer.sigterm_mono is None:
                 res.died_s = time.monotonic() - t0_mono
             if sig is None:
@@ -441,7 +443,7 @@ def judge_live(res: LiveResult, peer: Peer, comp: Companion) -> None:
         v.append("no_start")
     if res.died_s is not None:
         v.append("died")
-    if res.started and res.died_s is None and res.fresh_after_faults == 0:
+    if res.started and res.died_s is None and res.hearing_judged and res.fresh_after_faults == 0:
         v.append("deaf")
     if res.exit_code != 0:
         v.append("bad_exit")
