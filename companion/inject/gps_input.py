@@ -249,8 +249,8 @@ class Injector(Stage):
         self._floor_v_m = 0.0
         self._last_alt_m: float | None = None  # last altitude sent with sigma_v within max_v_acc_alt_m
         self._newest_input_t = -math.inf
-        # the receiver's recent 3D fixes: (t_s, lat, lon, sigma_h, vel_n, vel_e), velocities None when not given
-        # (t_s, lat_deg, lon_deg, sigma_h_m, vel_n_mps, vel_e_mps, speed_sigma_mps): the receiver's recent 3D fixes
+        # the receiver's recent 3D fixes: (t_s, lat_deg, lon_deg, sigma_h_m, vel_n_mps, vel_e_mps, speed_sigma_mps),
+        # velocities None when not given
         self._rx_fixes: deque[tuple[float, float, float, float, float | None, float | None, float]] = deque(
             maxlen=RX_FIXES_KEPT)
         self._inconsistent = False
@@ -335,8 +335,7 @@ class Injector(Stage):
         if good:
             h = receiver_sigma(fix, c.uere_m)[0]
             vn, ve = (fix.vel_n_mps, fix.vel_e_mps) if _finite(fix.vel_n_mps, fix.vel_e_mps) else (None, None)
-            s_v = fix.speed_acc_mps if fix.speed_acc_mps is not None and _finite(fix.speed_acc_mps) and fix.speed_acc_mps > 0 \
-                else c.receiver_speed_sigma_mps
+            s_v = fix.speed_acc_mps if _finite(fix.speed_acc_mps) and fix.speed_acc_mps > 0 else c.receiver_speed_sigma_mps
             self._rx_fixes.append((fix.t_s, fix.lat_deg, fix.lon_deg, h if h is not None and _finite(h) else c.uere_m, vn, ve,
                                    s_v))
             self._last_good_gnss_t = fix.t_s

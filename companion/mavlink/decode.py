@@ -59,7 +59,7 @@ _EPOCH_US = 1e15
 MIN_ALT_M, MAX_ALT_M = -1000.0, 100_000.0
 #: an IMU field at an int16 limit is a clamped value, not a reading (ArduPilot's IMUs span 16-32 g and 2000 deg/s:
 #: 16000-32000 mG, 34907 mrad/s; the packer clamps what overflows), so the sample is unknown, not 32.8 g
-INT16_LIMITS = (-32768, 32767)
+INT16_MIN, INT16_MAX = -32768, 32767
 
 
 def _finite(*vals: float) -> bool:
@@ -214,7 +214,7 @@ class MavlinkDecoder:
             boot_s = units.s_from_ms(msg.time_boot_ms)
             index = _IMU_INDEX[mtype]
         raw = (msg.xacc, msg.yacc, msg.zacc, msg.xgyro, msg.ygyro, msg.zgyro)
-        if any(v in INT16_LIMITS for v in raw):
+        if INT16_MIN in raw or INT16_MAX in raw:  # tuple membership: no generator per IMU message
             self.dropped[f"{mtype} clamped (a field at its int16 limit)"] += 1
             return
         t_s = self._stamp(boot_s, recv_s, out)
