@@ -43,22 +43,36 @@ class InsFilter:
         self._f_sum = [0.0, 0.0, 0.0]
         self._f_n = 0
         C = ins.dcm()
-        F = np.zeros((15, 15))
-        F[0:3, 3:6] = np.eye(3)
+        F0, eye15, q_per_s = self._ins_model()
+        F = F0.copy()
         F[3:6, 6:9] = -skew(f)
         F[3:6, 9:12] = -C
         F[6:9, 12:15] = -C
-        F[9:15, 9:15] = -np.eye(6) / c.bias_tau_s
         Fd = F * dt
-        phi = np.eye(15) + Fd + 0.5 * Fd @ Fd
-        q = np.empty(15)
-        q[0:3] = 1e-6 * dt
-        q[3:6] = c.accel_noise_mps2_rthz**2 * dt
-        q[6:9] = c.gyro_noise_radps_rthz**2 * dt
-        q[9:12] = 2 * c.accel_bias_sigma_mps2**2 / c.bias_tau_s * dt
-        q[12:15] = 2 * c.gyro_bias_sigma_radps**2 / c.bias_tau_s * dt
-        self._kf.predict(F=phi, Q=np.diag(q))
+        phi = eye15 + Fd + 0.5 * Fd @ Fd
+        self._kf.predict(F=phi, Q=np.diag(q_per_s * dt))
         self._kf_t = t
+
+    def _ins_model(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The constant parts of the model of eq. 9 for this (frozen) config, built once: F without its attitude and
+        specific-force blocks, I (15 x 15), and the process noise per second (times dt: the same products as
+        building them at every step)."""
+        m = self.__dict__.get("_ins_model_cache")
+        if m is None:
+            c = self.config
+            F = np.zeros((15, 15))
+            F[0:3, 3:6] = np.eye(3)
+            F[9:15, 9:15] = -np.eye(6) / c.bias_tau_s
+            q = np.empty(15)
+            q[0:3] = 1e-6
+            q[3:6] = c.accel_noise_mps2_rthz**2
+            q[6:9] = c.gyro_noise_radps_rthz**2
+            q[9:12] = 2 * c.accel_bias_sigma_mps2**2 / c.bias_tau_s
+            q[12:15] = 2 * c.gyro_bias_sigma_radps**2 / c.bias_tau_s
+            for a in (F, q):
+                a.flags.writeable = False
+            m = self._ins_model_cache = (F, np.eye(15), q)
+        return m
 
     def _ins_apply(self, m: Measurement) -> tuple[bool, np.ndarray]:
         """The one update of the error-state KF (eqs. 7, 8, 10; companion.nav.kalman): predict to the measurement,
@@ -70,13 +84,14 @@ class InsFilter:
         Rg = m.R_gate()
         nis, ok = gate(y, H @ kf.P @ H.T + (R if Rg is None else np.maximum(R, Rg)), m.gate_chi2)
         self._out.append(
-            MeasurementUpdate(m.t_s, m.kind, "ins", tuple(float(x) for x in y),
-                              tuple(float(x) for x in np.sqrt(np.diag(R))), nis, m.gate_chi2, ok)
+            MeasurementUpdate(m.t_s, m.kind, "ins", tuple(y.tolist()), tuple(np.sqrt(R.diagonal()).tolist()), nis,
+                              m.gate_chi2, ok)
         )
         if not ok:
             return False, y
         kf.update(y.reshape(-1, 1), R=R, H=H)
-        dx = kf.x.ravel()
+        dx = kf.x.ravel().tolist()  # Python floats: the same values, and the strapdown INS (plain Python, every IMU
+        # sample) then runs on floats rather than numpy scalars, which are several times slower per operation
         self._correct_ins(dx[0:3], dx[3:6], dx[6:9], dx[9:12], dx[12:15])
         kf.x = np.zeros((15, 1))
         return True, y
@@ -172,7 +187,7 @@ class InsFilter:
         if m.kind == "gnss_pos":
             ok = self._gate_bookkeeping(m.t_s, ok, y, m.sigma_h_m, m.sigma_v_m, force_reset)
         if ok:
-            self._last_innov = tuple(float(x) for x in y)
+            self._last_innov = tuple(y.tolist())
         else:
             self._n_rejected += 1
         return ok

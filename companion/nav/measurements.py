@@ -15,6 +15,20 @@ from companion.constants import CHI2_1DOF_999, CHI2_2DOF_999, CHI2_3DOF_999
 from companion.nav.linalg import solve
 
 
+def _selection(rows: int, first: int) -> np.ndarray:
+    """The constant Jacobian picking ``rows`` consecutive error states from ``first`` (read-only: shared)."""
+    H = np.zeros((rows, 15))
+    H[:, first:first + rows] = np.eye(rows)
+    H.flags.writeable = False
+    return H
+
+
+_H_POS, _H_NE, _H_VEL, _H_ATT = _selection(3, 0), _selection(2, 0), _selection(3, 3), _selection(3, 6)
+_H_DOWN = np.zeros((1, 15))
+_H_DOWN[0, 2] = 1.0
+_H_DOWN.flags.writeable = False
+
+
 def skew(v) -> np.ndarray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
@@ -85,9 +99,7 @@ class PositionMeasurement(Measurement):
         return s.pos_ned_m
 
     def H_ins(self):
-        H = np.zeros((3, 15))
-        H[:, 0:3] = np.eye(3)
-        return H
+        return _H_POS
 
     def h_kin(self, x, delay_s):
         return x[0:3] - x[3:6] * delay_s  # the fix describes the vehicle at t - delay
@@ -119,9 +131,7 @@ class HorizontalPositionMeasurement(Measurement):
         return s.pos_ned_m[:2]
 
     def H_ins(self):
-        H = np.zeros((2, 15))
-        H[:, 0:2] = np.eye(2)
-        return H
+        return _H_NE
 
     def h_kin(self, x, delay_s):
         return x[0:2]
@@ -152,9 +162,7 @@ class VelocityMeasurement(Measurement):
         return s.vel_ned_mps
 
     def H_ins(self):
-        H = np.zeros((3, 15))
-        H[:, 3:6] = np.eye(3)
-        return H
+        return _H_VEL
 
     def h_kin(self, x, delay_s):
         return x[3:6]
@@ -186,9 +194,7 @@ class AttitudeMeasurement(Measurement):
         return -0.5 * np.array([E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]])
 
     def H_ins(self):
-        H = np.zeros((3, 15))
-        H[:, 6:9] = np.eye(3)
-        return H
+        return _H_ATT
 
 
 @dataclass(frozen=True)
@@ -210,9 +216,7 @@ class AltitudeMeasurement(Measurement):
         return s.pos_ned_m[2:3]
 
     def H_ins(self):
-        H = np.zeros((1, 15))
-        H[0, 2] = 1.0
-        return H
+        return _H_DOWN
 
     def h_kin(self, x, delay_s):
         return x[2:3]
