@@ -177,6 +177,13 @@ class KnnPredictor:
             self._tree = cKDTree(self._keys[:n].copy())
             self._tree_n_added = self._n_added
 
+    def _fresh(self, rows: np.ndarray, overwritten: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """(rows, mask of those not overwritten since the tree was built; None: all)."""
+        if not overwritten:
+            return rows, None
+        c = self.config
+        return rows, (rows - self._tree_n_added % c.max_entries) % c.max_entries >= overwritten
+
     def _query(self, key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Exact k nearest entries (ring rows, distances) by eq. (1): tree part plus brute-force tail."""
         c = self.config
@@ -187,13 +194,21 @@ class KnnPredictor:
             # rows overwritten since the build are stale in the tree; they are re-searched in the tail
             overwritten = self._n_added - self._tree_n_added
             kk = min(k + overwritten, len(self._tree_rows))
-            d, i = self._tree.query(key, k=kk)
-            d, i = np.atleast_1d(d), np.atleast_1d(i)
-            rows = self._tree_rows[i]
-            if overwritten:
-                start = self._tree_n_added % c.max_entries
-                stale = (rows - start) % c.max_entries < overwritten
-                rows, d = rows[~stale], d[~stale]
+            d = None
+            if kk > k + 1:  # a narrow query first; it decides when k fresh rows lie strictly inside its radius
+                d, i = self._tree.query(key, k=k + 1)
+                rows, fresh = self._fresh(self._tree_rows[i], overwritten)
+                inside = fresh & (d < d[-1])
+                if np.count_nonzero(inside) >= k:  # the wide query's k nearest fresh rows are exactly these
+                    rows, d = rows[inside], d[inside]
+                else:
+                    d = None
+            if d is None:
+                d, i = self._tree.query(key, k=kk)
+                d, i = np.atleast_1d(d), np.atleast_1d(i)
+                rows, fresh = self._fresh(self._tree_rows[i], overwritten)
+                if fresh is not None:
+                    rows, d = rows[fresh], d[fresh]
             rows_list.append(rows)
             d_list.append(d)
             valid_tree_rows = True

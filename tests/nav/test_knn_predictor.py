@@ -113,6 +113,42 @@ def test_ring_buffer_tree_plus_tail_is_exact_search():
     assert np.allclose(p.predict(30.1).ned_m, ref, atol=1e-9)
 
 
+def _wide_query(p, key):
+    """The search as it was before the narrow first query: k + (entries since the build) from the tree, stale rows
+    dropped, plus the brute-force tail."""
+    c, k = p.config, min(p.config.k, p.n_entries)
+    overwritten = p._n_added - p._tree_n_added
+    d, i = p._tree.query(key, k=min(k + overwritten, len(p._tree_rows)))
+    rows, d = p._tree_rows[np.atleast_1d(i)], np.atleast_1d(d)
+    stale = (rows - p._tree_n_added % c.max_entries) % c.max_entries < overwritten
+    tail = np.arange(p._tree_n_added, p._n_added) % c.max_entries
+    rows = np.concatenate([rows[~stale], tail])
+    d = np.concatenate([d[~stale], np.sqrt(((p._keys[tail] - key) ** 2).sum(axis=1))])
+    order = np.lexsort((rows, d))[:k]
+    return rows[order], d[order]
+
+
+@pytest.mark.parametrize("hover", [False, True], ids=["moving", "hover-ties"])
+def test_narrow_first_query_equals_the_wide_one(hover):
+    # the narrow (k + 1) query decides only when it can: same rows and distances as the wide one, before and after
+    # the ring wraps, and with many exactly equal keys (a hover repeats one fix: all-zero relative keys)
+    rng = np.random.default_rng(5)
+    cfg = KnnConfig(k=5, max_entries=300, rebuild_every=40)
+    p = KnnPredictor(cfg)
+    pos = np.zeros(3)
+    checked = 0
+    for j, t in enumerate(np.arange(0, 80.0, 0.1)):
+        if not (hover and (j // 50) % 2):
+            pos = pos + rng.standard_normal(3) * 0.3
+        p.add_fix(round(float(t), 6), pos.copy())
+        if p._tree is not None and j % 3 == 0:
+            for key in (np.zeros(p._key_dim), rng.standard_normal(p._key_dim), p._keys[j % p.n_entries]):
+                got, ref = p._query(key), _wide_query(p, key)
+                assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1])
+                checked += 1
+    assert checked > 500 and p._n_added > cfg.max_entries
+
+
 def test_uncertainty_grows_with_age_and_resets_at_fix():
     p = KnnPredictor()
     _feed(p, turn, 60.0, 1.0)
