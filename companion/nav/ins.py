@@ -115,6 +115,8 @@ class StrapdownIns:
         self.earth_rate = earth_rate
         self.f_ned = (0.0, 0.0, -9.8)  # last specific force in NED (for the error model)
         self._omega = EARTH_RATE_RADPS if earth_rate else 0.0
+        self._dcm_q: tuple | None = None  # the attitude self._dcm was built for
+        self._dcm: np.ndarray | None = None
 
     # -- geometry helpers
     def radii(self) -> tuple[float, float]:
@@ -143,7 +145,13 @@ class StrapdownIns:
         return euler_from_quat(self.q)
 
     def dcm(self) -> np.ndarray:
-        return dcm_from_quat(self.q)
+        """C_b^n of the current attitude; built once per attitude (``q`` is replaced, never changed in place, at every
+        step or correction), read-only as it is shared."""
+        if self.q is not self._dcm_q:
+            C = dcm_from_quat(self.q)
+            C.flags.writeable = False
+            self._dcm, self._dcm_q = C, self.q
+        return self._dcm
 
     def nav_rates(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
         """(w_ie^n, w_en^n) in rad/s."""
