@@ -48,6 +48,7 @@ Pure: no I/O, no clocks. Positions in, positions out.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -99,10 +100,13 @@ class Prediction:
     method: str
 
 
+@functools.lru_cache(maxsize=16)
 def eq4_weights(k: int) -> np.ndarray:
-    """Eq. (4): w_j = j / n for j = 1..k, with n = k(k+1)/2 so that the weights sum to one."""
+    """Eq. (4): w_j = j / n for j = 1..k, with n = k(k+1)/2 so that the weights sum to one (read-only: cached)."""
     j = np.arange(1, k + 1, dtype=float)
-    return j / j.sum()
+    w = j / j.sum()
+    w.flags.writeable = False
+    return w
 
 
 def _interp_pair(a, b, t: float) -> np.ndarray:

@@ -271,7 +271,7 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
             P = self._kin.P
         if self.motion is not None:
             (n, e, d), P = self._motion_blend(tg, (n, e, d), P)
-        diag = tuple(float(v) for v in np.diag(P))
+        diag = tuple(P.diagonal().tolist())
         lat, lon, alt = self.frame.geodetic_tuple(n, e, d)
         used = "+".join(sorted(self._used, key=_USED_ORDER.index)) or "none"
         self._out.append(
