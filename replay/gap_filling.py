@@ -472,8 +472,8 @@ def main(argv: list[str] | None = None) -> int:
         cells = [f"{stats(np.concatenate(d[m]))['h_rmse']:.2f}" if m in d else "n/a" for m in METHODS]
         md.append(f"| {n} | {modes[n]} | {L:g} | {n_windows[(n, L)]} | " + " | ".join(cells) + " |")
     md += ["", "In kinematic mode (IMU too slow or absent) there is no INS: the 'INS + KF ... no predictor' column is "
-           "then the constant-velocity Kalman filter without predictor, and 'KNN + INS + Kalman' is KNN + "
-           "constant-velocity Kalman filter.", ""]
+           "then the kinematic filter (hold / constant-velocity IMM, companion.nav.hold_cv) without predictor, and "
+           "'KNN + INS + Kalman' is KNN + that filter.", ""]
     md += _won_tables(per_log, modes, args.lengths)
     if args.held_out:
         md += _held_out_table(per_log, modes, args.lengths, args.held_out)
