@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from companion.constants import CHI2_2DOF_999, CHI2_3DOF_999
 from companion.nav.drag import DragConfig
 from companion.nav.gnss_lag import GnssLagConfig
+from companion.nav.hold_cv import HoldCvConfig
 from companion.nav.hover import HoverConfig
 from companion.nav.knn_predictor import KnnConfig
 from companion.nav.motion_prior import MotionPriorConfig
@@ -123,6 +124,9 @@ class NavigatorConfig:
     init_sigma_att_rad: float = 0.05
     init_sigma_yaw_rad: float = 0.2
     kinematic_accel_sigma_mps2: float = 2.0
+    # kinematic mode: hold and constant velocity as an IMM, mixed by their innovation likelihoods (companion.nav.hold_cv)
+    kinematic_hold_cv: bool = True
+    hold_cv: HoldCvConfig = field(default_factory=HoldCvConfig)
     ahrs_check: bool = True
     ahrs_check_interval_s: float = 0.9
     ahrs_check_tau_s: float = 20.0
