@@ -282,7 +282,7 @@ def test_summary_lines_wrap_to_the_terminal(monkeypatch):
 
     monkeypatch.setenv("COLUMNS", "80")
     text = _summary_line("navigator", "mode_reason: IMU0 slower than the 20 Hz strapdown mechanisation needs: "
-                                      "kinematic constant-velocity model")
+                                      "kinematic hold / constant-velocity IMM")
     lines = text.splitlines()
     assert len(lines) == 2 and all(len(x) <= 80 for x in lines)
     assert lines[1].startswith(" " * 13) and lines[1][13] != " "  # under the text, not under the label

@@ -36,22 +36,22 @@ class Modes:
                 )
                 self.ins = None
             return
+        model = "kinematic hold / constant-velocity IMM" if c.kinematic_hold_cv else "kinematic constant-velocity model"
         if not imu_alive or self._last_imu_t is None:
             key = "no_imu" if self._last_imu_t is None else "imu_stopped"
-            reason = f"no IMU{c.imu_index} samples in the source: kinematic constant-velocity model"
+            reason = f"no IMU{c.imu_index} samples in the source: {model}"
             if key == "imu_stopped":
-                reason = f"IMU{c.imu_index} stream stopped for > {c.imu_timeout_s:g} s: kinematic constant-velocity model"
+                reason = f"IMU{c.imu_index} stream stopped for > {c.imu_timeout_s:g} s: {model}"
         elif rate < c.min_imu_rate_hz:
             key = "low_rate"
             # no rate in the text: the summary's IMU rate line is the one measure of the stream's rate (this window's
             # count is in ModeChange.imu_rate_hz, at the time of the decision)
             reason = (
-                f"IMU{c.imu_index} slower than the {c.min_imu_rate_hz:g} Hz strapdown mechanisation needs: "
-                "kinematic constant-velocity model"
+                f"IMU{c.imu_index} slower than the {c.min_imu_rate_hz:g} Hz strapdown mechanisation needs: {model}"
             )
         elif self._att is None:
             key = "no_attitude"
-            reason = "no attitude source to initialise the INS: kinematic constant-velocity model"
+            reason = f"no attitude source to initialise the INS: {model}"
         else:
             self._ins_init(t, z, vel)
             self._set_mode(t, "ins", f"strapdown INS on IMU{c.imu_index} + error-state KF", "ins")
