@@ -207,10 +207,10 @@ def test_attitude_held_by_a_reference_gives_the_velocity_random_walk_of_its_tilt
 @pytest.mark.parametrize("roughen,shrink,expected", [(None, True, 1.0), (None, False, 1.1), (0.1, False, 1.01)])
 def test_resampling_kernel_against_a_known_posterior(roughen, shrink, expected):
     """Regularised resampling against a known posterior: prior N(0, 1000^2 I) particles weighted by a Gaussian
-    likelihood N(0, 300^2) per axis (posterior variance s^2 = 1 / (1/1000^2 + 1/300^2)). The default kernel is the
-    regularised particle filter's optimum for N = 1000, d = 2 (h^2 = 0.1) with Liu-West shrinkage: the population
-    keeps the posterior's mean and variance (ratio 1); without shrinkage every resampling inflates it by 1 + h^2.
-    Averaged over 20 draws; the mean stays at 0."""
+    likelihood N(0, 300^2) per axis (posterior variance s^2 = 1 / (1/1000^2 + 1/300^2)). With roughen=None the
+    kernel is the regularised particle filter's optimum for N = 1000, d = 2 (h^2 = 0.1): with Liu-West shrinkage the
+    population keeps the posterior's mean and variance (ratio 1), without it every resampling inflates it by
+    1 + h^2 (the default 0.1 kernel by 1.01). Averaged over 20 draws; the mean stays at 0."""
     from companion.gravity.sequential_backends import _Mpf, rpf_bandwidth, prior_covariance
 
     cfg = SeqGravConfig(n_particles=1000, roughen=roughen, roughen_shrink=shrink)
