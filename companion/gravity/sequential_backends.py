@@ -134,6 +134,12 @@ def _weighted_moments(x: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndar
     return m, cov, (skew**2 + 1.0) / kurt
 
 
+def rpf_bandwidth(n_particles: int, dim: int) -> float:
+    """Optimal Gaussian kernel bandwidth of the regularised particle filter (Musso, Oudjane & Le Gland 2001), in
+    units of the population standard deviation: (4 / (N (d + 2)))^(1 / (d + 4))."""
+    return float((4.0 / (n_particles * (dim + 2.0))) ** (1.0 / (dim + 4.0)))
+
+
 # ---- back-ends -----------------------------------------------------------------------------------------
 class _Mpf:
     """Marginalised particle filter with a covariance shared by all particles' Kalman filters."""
@@ -219,9 +225,18 @@ class _Mpf:
         u = (self.rng.random() + np.arange(self.n)) / self.n  # systematic
         idx = np.minimum(np.searchsorted(np.cumsum(self.w), u), self.n - 1)
         xn, xl = self.xn[idx], self.xl[idx]
-        if self.cfg.roughen > 0:  # regularisation of the positions only (velocity diversity comes from eq. 23a)
+        h = rpf_bandwidth(self.n, N_NL) if self.cfg.roughen is None else float(self.cfg.roughen)
+        if h > 0:  # regularisation of the positions only (velocity diversity comes from eq. 23a)
             C = np.cov(xn, rowvar=False)
-            xn = xn + self.rng.standard_normal(xn.shape) @ _chol_psd(C).T * self.cfg.roughen
+            if h > self.cfg.roughen_multimodal and _weighted_moments(xn, np.full(self.n, 1.0 / self.n))[2] > \
+                    self.cfg.multimodal_bc:  # a kernel of the global spread would smear the modes together
+                h = self.cfg.roughen_multimodal
+            jitter = self.rng.standard_normal(xn.shape) @ _chol_psd(C).T * h
+            if self.cfg.roughen_shrink:  # Liu & West 2001: shrink to the mean so the kernel keeps mean and covariance
+                a = np.sqrt(max(1.0 - h * h, 0.0))
+                xn = a * xn + (1.0 - a) * xn.mean(axis=0) + jitter
+            else:
+                xn = xn + jitter
         self.xn, self.xl = xn, xl
         self.w = np.full(self.n, 1.0 / self.n)
         return True
