@@ -92,3 +92,24 @@ def test_heading_off_autopilot_tilt_deweighted_then_not_fused_when_configured():
     assert 0 < len(ups_drop) < 0.5 * len(ups)  # fused until the heading check flags the autopilot, then never
     last = max(u.t_s for u in ups_drop)
     assert last < t_flag + 1.0 and sum(u.t_s > last + 10.0 for u in ups) > 100  # by default still fused, de-weighted
+
+
+def test_no_tilt_reset_onto_an_autopilot_gnss_shows_wrong():
+    """The autopilot's roll jumps 0.5 rad while the vehicle does not: its updates are rejected, and without the
+    monitor 50 rejections reset the INS tilt onto it (companion.nav.recovery). The GNSS residual shows the autopilot
+    wrong, so with the monitor its tilt is de-weighted instead: no reset, and the INS roll stays much closer to truth."""
+    from companion.nav.outputs import FusedState, NavigatorReset
+
+    sim = simulate_circle_flight(40.0, np.random.default_rng(8), noise=RECEIVER)
+    t0 = sim.events[0].t_s
+    events = [dataclasses.replace(e, roll_rad=e.roll_rad + 0.5) if isinstance(e, Attitude) and e.t_s >= t0 + 20.0
+              else e for e in sim.events]
+    true_roll = {round(e.t_s, 1): e.roll_rad for e in sim.events if isinstance(e, Attitude)}
+    med = {}
+    for on in (False, True):
+        out = run_navigator(events, NavigatorConfig(att_consistency=on))
+        assert any(isinstance(o, NavigatorReset) and o.kind == "attitude_rejected" for o in out) == (not on)
+        err = [abs(o.roll_rad - true_roll[round(o.t_s, 1)]) for o in out
+               if isinstance(o, FusedState) and o.t_s > t0 + 22.0 and round(o.t_s, 1) in true_roll]
+        med[on] = np.degrees(np.median(err))
+    assert med[False] > 20.0 and med[True] < 0.5 * med[False], med
