@@ -86,9 +86,9 @@ def test_heading_off_autopilot_tilt_deweighted_then_not_fused_when_configured():
     _f, ups_off = _tilt_variance_factor("yaw90", 21, NavigatorConfig(att_consistency=False))
     t_flag = min(u.t_s for u in ups_off if u.sigma[0] > 3.0 * nominal)
     assert all(u.sigma[0] == pytest.approx(nominal) for u in ups_off if u.t_s < t_flag)
-    _f, ups = _tilt_variance_factor("yaw90", 21, NavigatorConfig())
+    _f, ups = _tilt_variance_factor("yaw90", 21, NavigatorConfig(att_consistency=True))
     assert max(u.sigma[0] for u in ups if u.t_s < t_flag) > 1.5 * nominal
-    _f, ups_drop = _tilt_variance_factor("yaw90", 21, NavigatorConfig(fuse_flagged_tilt=False))
+    _f, ups_drop = _tilt_variance_factor("yaw90", 21, NavigatorConfig(att_consistency=True, fuse_flagged_tilt=False))
     assert 0 < len(ups_drop) < 0.5 * len(ups)  # fused until the heading check flags the autopilot, then never
     last = max(u.t_s for u in ups_drop)
     assert last < t_flag + 1.0 and sum(u.t_s > last + 10.0 for u in ups) > 100  # by default still fused, de-weighted
