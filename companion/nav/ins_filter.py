@@ -194,8 +194,8 @@ class InsFilter:
 
     def _ins_attitude_update(self, ev: Attitude) -> None:
         c = self.config
-        if not self.ahrs_consistent and not c.fuse_flagged_tilt_in_gap and (
-                self._last_fix_t is None or ev.t_s - self._last_fix_t >= c.gnss_gap_s):
+        if not self.ahrs_consistent and (not c.fuse_flagged_tilt or not c.fuse_flagged_tilt_in_gap and (
+                self._last_fix_t is None or ev.t_s - self._last_fix_t >= c.gnss_gap_s)):
             return  # a flagged autopilot's tilt is wrong by degrees in manoeuvres: without GNSS it would only mislead
         # its heading only once the heading check has measured it consistent (before, it may be ~90 deg off)
         fuse_yaw = c.fuse_attitude_yaw and self.ahrs_consistent and math.isfinite(self.ahrs_heading_offset_rad)
@@ -211,6 +211,8 @@ class InsFilter:
         if not self.ahrs_consistent:  # tilt error induced by the AHRS heading offset (see ahrs_check)
             a_rms = math.sqrt(self._al_acc2 / self._al_w) if self._al_w > 0 else 0.0
             s_tilt2 += (2.0 * math.sin(0.5 * abs(self.ahrs_heading_offset_rad)) * a_rms / 9.8) ** 2
+        if c.att_consistency:  # the tilt variance GNSS has measured (AhrsHeadingCheck._tilt_residual), if larger
+            s_tilt2 = max(s_tilt2, c.att_sigma_tilt_rad**2 * self._att_nis.inflation())
         m = AttitudeMeasurement(ev.t_s, "attitude", c_meas=c_meas, var_rad2=(s_tilt2, s_tilt2, s_yaw**2),
                                 gate_chi2=c.gate_chi2)
         ok, y = self._ins_apply(m)

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import math
 
+from companion.nav.consistency import NisMonitor
+
 
 class AhrsHeadingCheck:
     """Mixin: autopilot heading vs GNSS, and the coarse in-motion yaw alignment of the INS."""
@@ -26,6 +28,8 @@ class AhrsHeadingCheck:
         self.ahrs_heading_offset_rad = math.nan  # GNSS-observed heading minus autopilot heading
         self.ahrs_consistent = True
         self.yaw_alignments: list[tuple[float, float]] = []  # (t, applied INS heading rotation rad)
+        c = self.config
+        self._att_nis = NisMonitor(c.att_nis_tau_s, c.att_nis_min_s)  # autopilot tilt vs the INS (att_consistency)
 
     def _ahrs_check(self, t: float, vel) -> None:
         """Autopilot heading vs GNSS (see ``NavigatorConfig.ahrs_check``); re-align the INS if it is off."""
@@ -47,6 +51,8 @@ class AhrsHeadingCheck:
         self._al_eg = self._al_eg * w + abs(zg) ** 2
         self._al_acc2 = self._al_acc2 * w + (abs(zg) / (t - a[0])) ** 2
         self._al_w = self._al_w * w + 1.0
+        if c.att_consistency:
+            self._tilt_residual(t, t - a[0], zg, zf)
         if min(self._al_ef, self._al_eg) < c.ahrs_check_min_dv_mps**2:
             return
         if abs(self._al_c) < c.ahrs_check_min_coherence * math.sqrt(self._al_ef * self._al_eg):
@@ -59,6 +65,22 @@ class AhrsHeadingCheck:
             self.ahrs_consistent = True
         if not self.ahrs_consistent and self.mode == "ins":
             self._align_yaw(t)
+
+    def _tilt_residual(self, t: float, dt: float, zg: complex, zf: complex) -> None:
+        """Covariance matching of the autopilot's tilt against GNSS, independent of the INS (which follows the
+        autopilot's tilt when that is fused at a high rate, so its own attitude innovations cannot show a bias):
+        over one interval dt, the GNSS velocity change minus the specific force resolved with the autopilot's
+        attitude (rotated by the measured heading offset, 0 until one is measured) leaves per horizontal axis
+        variance 2 sigma_v^2 (GNSS velocity noise at both ends) + q_a dt (accelerometer noise) + (g sigma_tilt dt)^2
+        (the tilt error) for an autopilot as good as ``att_sigma_tilt_rad``. The excess over the first two,
+        in units of the third, is fed to the monitor: its forgotten mean is the factor by which the tilt variance
+        must grow to explain what GNSS saw (1 for a consistent autopilot)."""
+        c = self.config
+        off = self.ahrs_heading_offset_rad if math.isfinite(self.ahrs_heading_offset_rad) else 0.0
+        r = zg - zf * complex(math.cos(off), math.sin(off))
+        other = 2.0 * c.gnss_vel_sigma_mps**2 + c.accel_noise_mps2_rthz**2 * dt
+        tilt = (9.80665 * c.att_sigma_tilt_rad * dt) ** 2
+        self._att_nis.add(t, (0.5 * abs(r) ** 2 - other) / tilt, 1)
 
     def _align_yaw(self, t: float) -> None:
         """Rotate the INS heading to autopilot heading + measured offset if it is far from it."""
