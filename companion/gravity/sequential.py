@@ -52,7 +52,8 @@ import numpy as np
 from companion.gravity.maps import LocalGravityMap
 from companion.gravity.particle import FieldSampler
 from companion.gravity.sequential_backends import (  # noqa: F401 - the model is part of this module's interface
-    DEGPH_RADPS, G0_MPS2, IB, IBA, IBG, IPSI, IS, IV, N_ALL, N_LIN, N_NL, UG_MPS2, Status, _chol_psd, _Mpf, _Pmf,
+    DEGPH_RADPS, G0_MPS2, IB, IBA, IBG, IPSI, IS, IV, N_ALL, N_LIN, N_NL, UG_MPS2, MisfitVarianceLearner, Status,
+    _chol_psd, _Mpf, _Pmf,
     _weighted_moments, continuous_noise, discretise, eotvos_jacobian_mgal_per_mps, error_dynamics, prior_covariance,
 )
 
@@ -95,6 +96,9 @@ class MapErrorSpec:
     # short-scale part (shared by the readings within white_corr_length_m, the residual series' sample spacing)
     white_sigma_mgal: float = 0.3
     white_corr_length_m: float = 330.0
+    # > 0: the misfit's sigma is learnt along the track (MisfitVarianceLearner, sigma_mgal its floor) over this much
+    # distance; 0: sigma_mgal throughout
+    learn_window_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -221,6 +225,8 @@ class SequentialGravityFilter:
         self._holdoff_until = -np.inf
         self.reinit_count = 0
         self._anchored = False
+        me = self.cfg.map_error
+        self.misfit = MisfitVarianceLearner(me.learn_window_m, me.corr_length_m) if me.learn_window_m > 0 else None
 
     # -- helpers -----------------------------------------------------------------------------------------
     def _lat(self, north_m: float, lat_deg) -> float:
@@ -317,6 +323,8 @@ class SequentialGravityFilter:
             nis_mean, sig_ratio = float("nan"), 0.0
         else:
             nis, best, hm, _grad = res
+            if self.misfit is not None:
+                self.misfit.add(self._dist_m, float(g_mgal) - hm, r_raw)
             self._nis.append((self.t_s, nis))
             if best > cfg.lost_loglik_sigma:
                 self._lost.append(self.t_s)
@@ -379,7 +387,8 @@ class SequentialGravityFilter:
         nsub = int(np.ceil(dt_total / cfg.max_step_s))
         dt = dt_total / nsub
         A = error_dynamics(np.radians(lat0), vmid, acc, head0, tau_b, attitude_tau_s=cfg.ins.attitude_tau_s)
-        Phi, Qd = discretise(A, continuous_noise(cfg.ins, cfg.map_error, tau_b), dt)
+        sig_b = None if self.misfit is None else self.misfit.sigma_mgal(cfg.map_error.sigma_mgal)
+        Phi, Qd = discretise(A, continuous_noise(cfg.ins, cfg.map_error, tau_b, sig_b), dt)
         qn = cfg.pos_noise_m_rts**2 * dt
         for _ in range(nsub):
             P_before = self.P_ins[:2, :2].copy()

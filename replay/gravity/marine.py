@@ -402,6 +402,8 @@ def main(argv=None) -> int:
     ap.add_argument("--particles", type=int, default=SeqGravConfig().n_particles)
     ap.add_argument("--roughen", type=float, default=None,
                     help="position kernel bandwidth after resampling (default: SeqGravConfig.roughen)")
+    ap.add_argument("--learn-window-km", type=float, default=None,
+                    help="learn the map misfit's sigma over this distance (0: off; default: MapErrorSpec.learn_window_m)")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--no-write", action="store_true")
     a = ap.parse_args(argv)
@@ -414,6 +416,8 @@ def main(argv=None) -> int:
     cfg = SeqGravConfig(n_particles=a.particles)
     if a.roughen is not None:
         cfg = replace(cfg, roughen=a.roughen)
+    if a.learn_window_km is not None:
+        cfg = replace(cfg, map_error=replace(cfg.map_error, learn_window_m=1e3 * a.learn_window_km))
     maps = [m for m in a.maps.split(",") if m]
     seeds = list(range(a.first_seed, a.first_seed + a.seeds))
     jobs = [(m, s, ship, cut, a.min_track_std, cfg) for m in maps for s in seeds]
