@@ -439,7 +439,7 @@ def main(argv=None) -> int:
     text = [
         "## Sequential filter vs INS alone, marine scenario",
         "",
-        f"Command: `{cmd}`; seeds {seeds[0]}..{seeds[-1]} per map (aircraft {a.first_seed}.."
+        f"Command: `{cmd}`; seeds {a.first_seed}..{a.first_seed + a.seeds - 1} per map (aircraft {a.first_seed}.."
         f"{a.first_seed + a.aircraft_seeds - 1}); wall time {wall / 60:.1f} min "
         f"with {a.workers} worker(s); 1/5/15-min load average {load0[0]:.2f}/{load0[1]:.2f}/{load0[2]:.2f} at the start, "
         f"{load1[0]:.2f}/{load1[1]:.2f}/{load1[2]:.2f} at the end ({os.cpu_count()} cores shared with other work).",
