@@ -73,3 +73,23 @@ def test_filter_learns_the_injected_misfit_sigma_on_a_synthetic_map():
     assert np.mean(learnt) == pytest.approx(8.0, rel=0.15)
     assert _anchored_misfit_sigma(4, 0.0) == 3.0
 
+
+
+def test_a_track_shorter_than_the_window_runs_exactly_as_without_learning():
+    """The learnt sigma is the floor until the window is full: a 14 km track gives the same output, bit for bit."""
+    from tests.gravity.test_sequential_gravity import _track
+    from companion.gravity.sequential import run_batch
+
+    tr = _track(hours=0.5)
+    rng = np.random.default_rng(5)
+    g = MAP.interp_ne(tr.pos_ne_m[:, 0], tr.pos_ne_m[:, 1]) + rng.normal(0.0, 3.0, len(tr))
+    ins = tr.pos_ne_m + np.array([800.0, -600.0])
+    cov0 = np.full((len(tr), 2, 2), np.nan)
+    cov0[0] = np.eye(2) * 1000.0**2
+    on = SeqGravConfig()
+    assert on.map_error.learn_window_m > 20_000.0
+    off = replace(on, map_error=replace(on.map_error, learn_window_m=0.0))
+    a = run_batch(MAP, tr.t_s, g, ins, tr.vel_ne_mps, 1.0, ref_cov_ne_m2=cov0, cfg=on, rng=3)
+    b = run_batch(MAP, tr.t_s, g, ins, tr.vel_ne_mps, 1.0, ref_cov_ne_m2=cov0, cfg=off, rng=3)
+    np.testing.assert_array_equal(a.pos_ne_m, b.pos_ne_m)
+    np.testing.assert_array_equal(a.h_acc_m, b.h_acc_m)
