@@ -5,6 +5,7 @@ outputs) is :mod:`companion.gravity.sequential`. Pure numpy."""
 
 from __future__ import annotations
 
+from collections import deque
 from typing import Literal
 
 import numpy as np
@@ -70,7 +71,9 @@ def error_dynamics(lat_rad: float, vel_ne_mps, acc_ne_mps2, heading_rad: float, 
     return A
 
 
-def continuous_noise(spec: InsErrorSpec, mspec: MapErrorSpec, tau_b_s: float) -> np.ndarray:
+def continuous_noise(spec: InsErrorSpec, mspec: MapErrorSpec, tau_b_s: float,
+                     misfit_sigma_mgal: float | None = None) -> np.ndarray:
+    """misfit_sigma_mgal: the map misfit's sigma if not mspec.sigma_mgal (a learnt one, see MisfitVarianceLearner)."""
     q = np.zeros(N_ALL)
     q[N_NL + IV:N_NL + IV + 2] = (spec.accel_vrw_ug_rthz * UG_MPS2) ** 2
     if spec.attitude_tau_s > 0:  # stationary reference errors: q = 2 sigma^2 / tau
@@ -78,7 +81,8 @@ def continuous_noise(spec: InsErrorSpec, mspec: MapErrorSpec, tau_b_s: float) ->
         q[N_NL + IPSI + 2] = 2.0 * spec.attitude_heading_sigma_rad**2 / spec.attitude_tau_s
     else:
         q[N_NL + IPSI:N_NL + IPSI + 3] = (np.radians(spec.gyro_arw_deg_rthr) / 60.0) ** 2
-    q[N_NL + IB] = 2.0 * mspec.sigma_mgal**2 / tau_b_s
+    sig = mspec.sigma_mgal if misfit_sigma_mgal is None else misfit_sigma_mgal
+    q[N_NL + IB] = 2.0 * sig**2 / tau_b_s
     return np.diag(q)
 
 
@@ -138,6 +142,41 @@ def rpf_bandwidth(n_particles: int, dim: int) -> float:
     """Optimal Gaussian kernel bandwidth of the regularised particle filter (Musso, Oudjane & Le Gland 2001), in
     units of the population standard deviation: (4 / (N (d + 2)))^(1 / (d + 4))."""
     return float((4.0 / (n_particles * (dim + 2.0))) ** (1.0 / (dim + 4.0)))
+
+
+class MisfitVarianceLearner:
+    """The map misfit's variance learnt along the track: the sample variance of r = reading - (the cloud's weighted
+    mean map value) over the last ``window_m`` of distance, less the readings' own white variance. Under the misfit
+    model r is the misfit (sigma^2 after its level is removed by the window mean, less the part of a Gauss-Markov
+    process of length L a window of W >> L does not see, ~ 1 - L / W) plus the reading noise plus the map error of the
+    position error; when the cloud sits where the map does not fit the readings, the last term shows here even while
+    every particle's own innovation (the misfit state absorbs it) looks consistent. Running sums over a distance
+    window, O(1) per reading; bounded memory (one entry per reading inside the window)."""
+
+    def __init__(self, window_m: float, corr_length_m: float):
+        self.window_m = float(window_m)
+        self.corr_length_m = float(corr_length_m)
+        self._q: deque = deque()  # (distance, r, white variance)
+        self._s = np.zeros(3)  # sum r, sum r^2, sum white variance
+
+    def add(self, dist_m: float, r_mgal: float, white_var_mgal2: float) -> None:
+        self._q.append((dist_m, r_mgal, white_var_mgal2))
+        self._s += (r_mgal, r_mgal * r_mgal, white_var_mgal2)
+        while self._q and self._q[0][0] < dist_m - self.window_m:
+            d0, r0, w0 = self._q.popleft()
+            self._s -= (r0, r0 * r0, w0)
+
+    def sigma_mgal(self, floor_mgal: float) -> float:
+        """sqrt of the learnt misfit variance (scaled up by the GM variance a window does not see), at least floor;
+        the floor until the window is full."""
+        n = len(self._q)
+        if n < 10 or self._q[-1][0] - self._q[0][0] < 0.95 * self.window_m:
+            return float(floor_mgal)
+        mean = self._s[0] / n
+        var = max(self._s[1] / n - mean * mean, 0.0) - self._s[2] / n
+        x = self.corr_length_m / self.window_m  # expected sample variance of a GM process over a window: sigma^2 f(x)
+        var /= max(1.0 - 2.0 * x + 2.0 * x * x * (1.0 - np.exp(-1.0 / x)), 0.25)
+        return float(np.sqrt(max(var, floor_mgal**2)))
 
 
 # ---- back-ends -----------------------------------------------------------------------------------------

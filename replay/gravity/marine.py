@@ -402,6 +402,8 @@ def main(argv=None) -> int:
     ap.add_argument("--particles", type=int, default=SeqGravConfig().n_particles)
     ap.add_argument("--roughen", type=float, default=None,
                     help="position kernel bandwidth after resampling (default: SeqGravConfig.roughen)")
+    ap.add_argument("--learn-window-km", type=float, default=None,
+                    help="learn the map misfit's sigma over this distance (0: off; default: MapErrorSpec.learn_window_m)")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--no-write", action="store_true")
     a = ap.parse_args(argv)
@@ -414,6 +416,8 @@ def main(argv=None) -> int:
     cfg = SeqGravConfig(n_particles=a.particles)
     if a.roughen is not None:
         cfg = replace(cfg, roughen=a.roughen)
+    if a.learn_window_km is not None:
+        cfg = replace(cfg, map_error=replace(cfg.map_error, learn_window_m=1e3 * a.learn_window_km))
     maps = [m for m in a.maps.split(",") if m]
     seeds = list(range(a.first_seed, a.first_seed + a.seeds))
     jobs = [(m, s, ship, cut, a.min_track_std, cfg) for m in maps for s in seeds]
@@ -435,7 +439,7 @@ def main(argv=None) -> int:
     text = [
         "## Sequential filter vs INS alone, marine scenario",
         "",
-        f"Command: `{cmd}`; seeds {seeds[0]}..{seeds[-1]} per map (aircraft {a.first_seed}.."
+        f"Command: `{cmd}`; seeds {a.first_seed}..{a.first_seed + a.seeds - 1} per map (aircraft {a.first_seed}.."
         f"{a.first_seed + a.aircraft_seeds - 1}); wall time {wall / 60:.1f} min "
         f"with {a.workers} worker(s); 1/5/15-min load average {load0[0]:.2f}/{load0[1]:.2f}/{load0[2]:.2f} at the start, "
         f"{load1[0]:.2f}/{load1[1]:.2f}/{load1[2]:.2f} at the end ({os.cpu_count()} cores shared with other work).",
