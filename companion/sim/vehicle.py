@@ -53,6 +53,8 @@ from companion.sim.mavlink_out import statustext
 from companion.sim.playback import _ALWAYS, Item, Playback, _window
 
 MAV_CMD_SET_MESSAGE_INTERVAL = mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL
+#: at the end of the flight, wait at most this long (wall s) for the companion to read what was sent and close
+END_DRAIN_S = 60.0
 #: an arming refused holds the flight this long (playback s) before the next attempt: its last disarmed second repeats
 ARM_RETRY_S = 1.0
 
@@ -170,6 +172,23 @@ class VehicleSim:
             s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             s.bind(("127.0.0.1", 0))
             self._conn = s
+
+    def _finish_link(self) -> None:
+        """The flight is over: over TCP, half-close and read until the companion closes (at most END_DRAIN_S, or until
+        stopped), so that what was sent still arrives. Closing a socket with unread input sends a reset and the kernel
+        drops the unsent rest of the output: a companion behind the stream lost its last seconds."""
+        c = self._conn
+        if self.scheme == "tcpin" and c is not None and not self._stop:
+            try:
+                c.shutdown(socket.SHUT_WR)
+                deadline = time.monotonic() + END_DRAIN_S
+                while not self._stop and time.monotonic() < deadline:
+                    r, _, _ = select.select([c], [], [], 0.1)
+                    if r and not c.recv(65536):
+                        break  # the companion read everything and closed
+            except OSError:
+                pass
+        self._close_link()
 
     def _close_link(self) -> None:
         if self.scheme == "tcpin":
@@ -473,7 +492,7 @@ class VehicleSim:
                        "max_lag_s": self.stats.max_lag_s, "late_messages": self.stats.late_messages,
                        "sent": dict(self.stats.sent), "arm_delay_s": self.hold_s,
                        "armed_at_s": self.arming.armed_at_s if self.arming else None})
-            self._close_link()
+            self._finish_link()
             if self._conn is not None:
                 self._conn.close()
             if self._record is not None:
