@@ -15,9 +15,17 @@ from tests.runtime.test_hil import Sim
 
 def test_a_slow_client_receives_every_message_sent(tmp_path):
     sim = Sim(tmp_path, "--speed", 20, "--streams", "all")
-    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # a small window: the backlog sits in the sender
-    sock.connect(("127.0.0.1", sim.port))
+    deadline = time.monotonic() + 120  # "sim:" is printed before it listens: connect once it does
+    while True:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # a small window: the backlog sits in the sender
+        try:
+            sock.connect(("127.0.0.1", sim.port))
+            break
+        except ConnectionRefusedError:
+            sock.close()
+            assert time.monotonic() < deadline and sim.proc.poll() is None, "the simulator never listened"
+            time.sleep(0.05)
     sock.settimeout(0.05)
     me = mavlink2.MAVLink(None, srcSystem=255, srcComponent=190)
     heartbeat = bytes(me.heartbeat_encode(mavlink2.MAV_TYPE_GCS, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0).pack(me))
