@@ -45,6 +45,52 @@ class HoldCvConfig:
 HOLD, CV = 0, 1
 
 
+def cv_model(dt: float, accel_sigma_mps2: float) -> tuple[np.ndarray, np.ndarray]:
+    """(F, Q) of the constant-velocity model over dt: white-noise acceleration of ``accel_sigma_mps2``."""
+    F = np.eye(6)
+    F[0:3, 3:6] = np.eye(3) * dt
+    s2 = accel_sigma_mps2**2
+    Q = np.zeros((6, 6))
+    Q[0:3, 0:3] = np.eye(3) * dt**4 / 4 * s2
+    Q[0:3, 3:6] = Q[3:6, 0:3] = np.eye(3) * dt**3 / 2 * s2
+    Q[3:6, 3:6] = np.eye(3) * dt**2 * s2
+    return F, Q
+
+
+def reset_position(kf: KalmanFilter, z, R) -> None:
+    """The position set to z with covariance R, uncorrelated with the velocity (a reset to GNSS)."""
+    kf.x[0:3, 0] = np.asarray(z, dtype=float)
+    kf.P[0:3, 0:3] = np.asarray(R, dtype=float)
+    kf.P[0:3, 3:6] = kf.P[3:6, 0:3] = 0.0
+
+
+class CvFilter:
+    """The constant-velocity model alone (``kinematic_hold_cv`` off), with HoldCvFilter's interface."""
+
+    def __init__(self, x0, P0, accel_sigma_mps2: float) -> None:
+        self.accel_sigma_mps2 = float(accel_sigma_mps2)
+        self.kf = KalmanFilter(dim_x=6, dim_z=3)
+        self.kf.x, self.kf.P = x0, P0
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.kf.x
+
+    @property
+    def P(self) -> np.ndarray:
+        return self.kf.P
+
+    def predict(self, dt: float) -> None:
+        if dt > 0:
+            self.kf.predict(*cv_model(dt, self.accel_sigma_mps2))
+
+    def update(self, z: np.ndarray, R: np.ndarray, H: np.ndarray, evidence: bool = True) -> None:
+        self.kf.update(z, R=R, H=H)  # one model: nothing to weigh the evidence against
+
+    def reset_position(self, z, R) -> None:
+        reset_position(self.kf, z, R)
+
+
 class HoldCvFilter:
     """The kinematic filter as an IMM of hold and CV. ``x`` (6 x 1) and ``P`` are the mixture's; ``mu`` the mode
     probabilities (hold, CV)."""
@@ -89,14 +135,7 @@ class HoldCvFilter:
         Q[0:3, 0:3] = np.eye(3) * (self.config.hold_speed_mps * dt) ** 2
         Q[3:6, 3:6] = np.eye(3) * 1e-4
         hold.predict(F=F, Q=Q)
-        F = np.eye(6)
-        F[0:3, 3:6] = np.eye(3) * dt
-        s2 = self.accel_sigma_mps2**2
-        Q = np.zeros((6, 6))
-        Q[0:3, 0:3] = np.eye(3) * dt**4 / 4 * s2
-        Q[0:3, 3:6] = Q[3:6, 0:3] = np.eye(3) * dt**3 / 2 * s2
-        Q[3:6, 3:6] = np.eye(3) * dt**2 * s2
-        cv.predict(F=F, Q=Q)
+        cv.predict(*cv_model(dt, self.accel_sigma_mps2))
         self._combine()
 
     def update(self, z: np.ndarray, R: np.ndarray, H: np.ndarray, evidence: bool = True) -> None:
@@ -121,9 +160,7 @@ class HoldCvFilter:
     def reset_position(self, z, R) -> None:
         """Both models' position set to z with covariance R, uncorrelated with the velocity (a reset to GNSS)."""
         for m in self.models:
-            m.x[0:3, 0] = np.asarray(z, dtype=float)
-            m.P[0:3, 0:3] = np.asarray(R, dtype=float)
-            m.P[0:3, 3:6] = m.P[3:6, 0:3] = 0.0
+            reset_position(m, z, R)
         self._combine()
 
     def _combine(self) -> None:

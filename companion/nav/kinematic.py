@@ -1,6 +1,6 @@
 """The navigator's kinematic fallback: a 6-state constant-velocity Kalman filter (white-noise acceleration) on the
-same measurements as the INS filter, mixed with a hold model (companion.nav.hold_cv, ``kinematic_hold_cv``). Used when the source has no IMU, or its IMU is too slow to integrate, or no
-attitude initialises the INS; it always runs alongside, so the navigator can fall back at once. A mixin of
+same measurements as the INS filter, mixed with a hold model (companion.nav.hold_cv, ``kinematic_hold_cv``). Used
+when the source has no IMU, or its IMU is too slow to integrate, or no attitude initialises the INS; it always runs alongside, so the navigator can fall back at once. A mixin of
 companion.nav.navigator.Navigator (its state lives on the navigator)."""
 
 from __future__ import annotations
@@ -8,8 +8,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from companion.nav.hold_cv import HoldCvFilter
-from companion.nav.kalman import KalmanFilter
+from companion.nav.hold_cv import CvFilter, HoldCvFilter
 
 from companion.nav.measurements import Measurement, PositionMeasurement, gate
 from companion.nav.outputs import MeasurementUpdate
@@ -24,30 +23,18 @@ class KinematicFilter:
             v = [vel[0], vel[1], vel[2] if math.isfinite(vel[2]) else 0.0]
         x0 = np.array([[z[0]], [z[1]], [z[2]], [v[0]], [v[1]], [v[2]]])
         P0 = np.diag([9.0, 9.0, 25.0, 4.0, 4.0, 4.0])
-        if self.config.kinematic_hold_cv:  # hold / constant velocity mixed (companion.nav.hold_cv)
-            self._kin = HoldCvFilter(x0, P0, self.config.kinematic_accel_sigma_mps2, self.config.hold_cv)
+        c = self.config
+        if c.kinematic_hold_cv:  # hold / constant velocity mixed (companion.nav.hold_cv)
+            self._kin = HoldCvFilter(x0, P0, c.kinematic_accel_sigma_mps2, c.hold_cv)
         else:
-            kf = KalmanFilter(dim_x=6, dim_z=3)
-            kf.x, kf.P = x0, P0
-            self._kin = kf
+            self._kin = CvFilter(x0, P0, c.kinematic_accel_sigma_mps2)
         self._kin_t = t
 
     def _kin_predict(self, t: float) -> None:
         dt = t - self._kin_t
         if dt <= 0:
             return
-        if isinstance(self._kin, HoldCvFilter):
-            self._kin.predict(dt)
-            self._kin_t = t
-            return
-        F = np.eye(6)
-        F[0:3, 3:6] = np.eye(3) * dt
-        s2 = self.config.kinematic_accel_sigma_mps2**2
-        Q = np.zeros((6, 6))
-        Q[0:3, 0:3] = np.eye(3) * dt**4 / 4 * s2
-        Q[0:3, 3:6] = Q[3:6, 0:3] = np.eye(3) * dt**3 / 2 * s2
-        Q[3:6, 3:6] = np.eye(3) * dt**2 * s2
-        self._kin.predict(F=F, Q=Q)
+        self._kin.predict(dt)
         self._kin_t = t
 
     def _kin_apply(self, m: Measurement, record: bool) -> tuple[bool, np.ndarray, float]:
@@ -63,10 +50,8 @@ class KinematicFilter:
             self._out.append(MeasurementUpdate(m.t_s, m.kind, "kinematic", tuple(float(v) for v in y),
                                                tuple(float(v) for v in np.sqrt(np.diag(R))), nis, m.gate_chi2, ok))
         if ok:
-            if isinstance(kf, HoldCvFilter):  # a measurement of the vehicle is evidence for a motion model
-                kf.update((y + H @ x).reshape(-1, 1), R=R, H=H, evidence=m.kind in ("gnss_pos", "position_fix"))
-            else:
-                kf.update((y + H @ x).reshape(-1, 1), R=R, H=H)
+            # a measurement of the vehicle is evidence for a motion model; a pseudo-measurement is not
+            kf.update((y + H @ x).reshape(-1, 1), R=R, H=H, evidence=m.kind in ("gnss_pos", "position_fix"))
         return ok, y, nis
 
     def _kin_update(self, m: PositionMeasurement, record: bool) -> bool:
@@ -76,12 +61,7 @@ class KinematicFilter:
         if m.kind == "gnss_pos" and record:
             ok = self._gate_bookkeeping(m.t_s, ok, y, m.sigma_h_m, m.sigma_v_m)
             if ok and nis > m.gate_chi2:  # reset after persistent rejection
-                if isinstance(kf, HoldCvFilter):
-                    kf.reset_position(m.z(), m.R())
-                else:
-                    kf.x[0:3, 0] = m.z()
-                    kf.P[0:3, 0:3] = m.R()
-                    kf.P[0:3, 3:6] = kf.P[3:6, 0:3] = 0.0
+                kf.reset_position(m.z(), m.R())
                 self._last_innov = tuple(float(v) for v in y)
                 return True
         if not ok:

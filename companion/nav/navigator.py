@@ -41,6 +41,7 @@ from companion.nav.config import NavigatorConfig
 from companion.nav.ins import StrapdownIns, dcm_from_quat, quat_from_euler
 from companion.nav.ins_filter import InsFilter
 from companion.nav.kinematic import KinematicFilter
+from companion.nav.hold_cv import CvFilter, HoldCvFilter
 from companion.nav.drag import RotorDrag
 from companion.nav.motion_prior import MotionPrior
 from companion.nav.hover import HoverDetector
@@ -104,7 +105,7 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
         self.drag = RotorDrag(c.drag) if c.rotor_drag else None
         self.motion = MotionPrior(c.motion) if c.motion_prior else None
         # kinematic filter
-        self._kin: KalmanFilter | None = None
+        self._kin: CvFilter | HoldCvFilter | None = None
         self._kin_t = 0.0
         # per-output bookkeeping
         self._used: set[str] = set()
