@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 
+from companion.constants import G0_MPS2
 from companion.nav.consistency import NisMonitor
 
 
@@ -79,7 +80,7 @@ class AhrsHeadingCheck:
         off = self.ahrs_heading_offset_rad if math.isfinite(self.ahrs_heading_offset_rad) else 0.0
         r = zg - zf * complex(math.cos(off), math.sin(off))
         other = 2.0 * c.gnss_vel_sigma_mps**2 + c.accel_noise_mps2_rthz**2 * dt
-        tilt = (9.80665 * c.att_sigma_tilt_rad * dt) ** 2
+        tilt = (G0_MPS2 * c.att_sigma_tilt_rad * dt) ** 2
         self._att_nis.add(t, (0.5 * abs(r) ** 2 - other) / tilt, 1)
 
     def _align_yaw(self, t: float) -> None:
