@@ -151,7 +151,11 @@ class MisfitVarianceLearner:
     process of length L a window of W >> L does not see, ~ 1 - L / W) plus the reading noise plus the map error of the
     position error; when the cloud sits where the map does not fit the readings, the last term shows here even while
     every particle's own innovation (the misfit state absorbs it) looks consistent. Running sums over a distance
-    window, O(1) per reading; bounded memory (one entry per reading inside the window)."""
+    window, O(1) per reading; memory bounded by MAX_ENTRIES (one entry per reading inside the window)."""
+
+    #: memory bound whatever the speed: a vehicle slower than window_m / MAX_ENTRIES per reading (2.8 m at 280 km)
+    #: keeps only its newest readings, whose span never fills the window, so the floor stays in force
+    MAX_ENTRIES = 100_000
 
     def __init__(self, window_m: float, corr_length_m: float):
         self.window_m = float(window_m)
@@ -162,7 +166,7 @@ class MisfitVarianceLearner:
     def add(self, dist_m: float, r_mgal: float, white_var_mgal2: float) -> None:
         self._q.append((dist_m, r_mgal, white_var_mgal2))
         self._s += (r_mgal, r_mgal * r_mgal, white_var_mgal2)
-        while self._q and self._q[0][0] < dist_m - self.window_m:
+        while self._q and (self._q[0][0] < dist_m - self.window_m or len(self._q) > self.MAX_ENTRIES):
             d0, r0, w0 = self._q.popleft()
             self._s -= (r0, r0 * r0, w0)
 

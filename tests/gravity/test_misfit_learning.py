@@ -93,3 +93,17 @@ def test_a_track_shorter_than_the_window_runs_exactly_as_without_learning():
     b = run_batch(MAP, tr.t_s, g, ins, tr.vel_ne_mps, 1.0, ref_cov_ne_m2=cov0, cfg=off, rng=3)
     np.testing.assert_array_equal(a.pos_ne_m, b.pos_ne_m)
     np.testing.assert_array_equal(a.h_acc_m, b.h_acc_m)
+
+
+def test_learner_memory_is_bounded_for_a_vehicle_that_does_not_move(monkeypatch):
+    """Readings at one place for ever (a moored ship, a hover): the window never spans its distance, the entries stop
+    at MAX_ENTRIES and the floor stays in force."""
+    monkeypatch.setattr(MisfitVarianceLearner, "MAX_ENTRIES", 500)
+    lr = MisfitVarianceLearner(50_000.0, 2_000.0)
+    rng = np.random.default_rng(0)
+    for r in rng.normal(0.0, 20.0, 2000):
+        lr.add(1234.0, float(r), 1.0)
+    assert len(lr._q) == 500
+    assert lr.sigma_mgal(5.3) == 5.3
+    kept = np.array([e[1] for e in lr._q])
+    assert np.allclose(lr._s, (kept.sum(), (kept**2).sum(), 500.0))  # the running sums follow what is kept
