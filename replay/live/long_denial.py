@@ -51,6 +51,18 @@ NAV_SETTINGS = {
 }
 
 
+def summary_lines(text: str) -> list[str]:
+    """The companion's summary with each wrapped entry on one line: it wraps a long entry to the terminal's width
+    (80 columns in a pipe), its continuation lines indented under the text (companion.cli._summary_line)."""
+    lines: list[str] = []
+    for line in text.splitlines():
+        if lines and line.startswith(" " * 13) and line[13:14] not in (" ", ""):
+            lines[-1] += " " + line[13:]
+        else:
+            lines.append(line)
+    return lines
+
+
 def run_once(a, variant: str, work: Path) -> dict:
     """One sim + companion pair; returns the GPS_INPUT records and the companion's summary lines."""
     port = free_port()
@@ -85,9 +97,10 @@ def run_once(a, variant: str, work: Path) -> dict:
         raise SystemExit(f"companion failed:\n{err[-3000:]}")
     recs = [json.loads(line) for line in rec.read_text().splitlines()]
     gi = [r for r in recs if r["event"] == "gps_input" and "err_h_m" in r]
-    grav = next((line for line in out.splitlines() if line.startswith("gravity ")), "")
-    lat = next((line for line in out.splitlines() if line.startswith("latency ")), "")
-    lag_line = next((line for line in out.splitlines() if line.startswith("lag ")), "")
+    lines = summary_lines(out)
+    grav = next((line for line in lines if line.startswith("gravity ")), "")
+    lat = next((line for line in lines if line.startswith("latency ")), "")
+    lag_line = next((line for line in lines if line.startswith("lag ")), "")
     m = LAG_RE.search(lag_line)
     if m is None:
         raise SystemExit(f"companion summary has no lag line:\n{out[-3000:]}")
