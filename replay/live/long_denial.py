@@ -115,6 +115,36 @@ def run_once(a, variant: str, work: Path) -> dict:
             "h_acc_m": np.array([r["h_acc_m"] for r in gi]), "gravity": grav, "latency": lat, "wall_s": wall, "lag": lag}
 
 
+def draw_origin(seed: int, speed_mps: float, hours: float, line_km: float, spacing_km: float, cut_s: float,
+                min_track_std_mgal: float) -> tuple[float, float, float]:
+    """A survey start over features, drawn as the marine benchmark draws its tracks (replay.gravity.marine.draw_track,
+    Gao 2022 sec. 3): starts uniform in the Tasman strong-feature area (45 km margin) from ``seed``, the first whose
+    survey (this script's lines, first line north) lies on valid map with the map's STD along it after the GNSS cut
+    >= ``min_track_std_mgal``. Returns (lat, lon, STD)."""
+    from companion.sim.cruise import survey_waypoints
+    from replay.gravity.marine import map_case
+
+    case = map_case("Tasman")
+    lmap = case.filter_map
+    rng = np.random.default_rng(seed)
+    n0, n1, e0, e1 = case.box_ne_m
+    wps = np.array([(0.0, 0.0)] + survey_waypoints(speed_mps * hours * 3600.0, line_km * 1e3, spacing_km * 1e3, 0.0))
+    step_m = 30.0 * speed_mps
+    pts = []
+    for p0, p1 in zip(wps[:-1], wps[1:]):
+        k = max(1, int(np.hypot(*(p1 - p0)) / step_m))
+        pts += [p0 + (p1 - p0) * i / k for i in range(k)]
+    path = np.array(pts)
+    first_after_cut = int(cut_s * speed_mps / step_m)
+    for _ in range(2000):
+        start = np.array([rng.uniform(n0 + 45e3, n1 - 45e3), rng.uniform(e0 + 45e3, e1 - 45e3)])
+        g = lmap.interp_ne(path[:, 0] + start[0], path[:, 1] + start[1])
+        if np.all(np.isfinite(g)) and np.std(g[first_after_cut:]) >= min_track_std_mgal:
+            lon, lat = lmap.ne_to_xy(np.array(start[0]), np.array(start[1]))
+            return float(lat), float(lon), float(np.std(g[first_after_cut:]))
+    raise SystemExit("no survey start with that much map signal in the Tasman strong-feature area")
+
+
 def _ins_run(a, work: Path) -> dict:
     """The INS-alone run, reused from ``work`` when the same scenario was flown there before (it does not depend on
     the aided run's matcher or settings)."""
@@ -154,12 +184,15 @@ def main(argv=None) -> int:
     ap.add_argument("--hours", type=float, default=3.0)
     ap.add_argument("--speed-up", type=float, default=10.0)
     ap.add_argument("--cruise-speed", type=float, default=150.0, help="m/s")
-    ap.add_argument("--origin", default="-40.5,155.6", help="LAT,LON of the survey's start")
+    ap.add_argument("--origin", default="-40.5,155.6",
+                    help="LAT,LON of the survey's start, or draw: over features (see --min-track-std-mgal)")
     ap.add_argument("--line-km", type=float, default=300.0)
     ap.add_argument("--spacing-km", type=float, default=20.0)
     ap.add_argument("--gnss-off-s", type=float, default=1200.0, help="GNSS cut from this playback time to the end")
     ap.add_argument("--sigma-mgal", type=float, default=1.0)
     ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--min-track-std-mgal", type=float, default=15.0,
+                    help="with --origin draw: the map STD the survey must see after the cut (the marine benchmark's rule)")
     ap.add_argument("--imu-hz", type=float, default=25.0)
     ap.add_argument("--gnss-hz", type=float, default=5.0)
     ap.add_argument("--sensors", choices=tuple(NAV_SETTINGS), default="aircraft", help="simulated sensor set")
@@ -172,6 +205,14 @@ def main(argv=None) -> int:
     ap.add_argument("--no-write", action="store_true", help="print only (no results file, no plot)")
     a = ap.parse_args(argv)
     a.name = a.name or a.sensors
+    origin_note = ""
+    if a.origin == "draw":
+        lat, lon, std = draw_origin(a.seed, a.cruise_speed, a.hours, a.line_km, a.spacing_km, a.gnss_off_s,
+                                    a.min_track_std_mgal)
+        a.origin = f"{lat:.3f},{lon:.3f}"
+        origin_note = (f" (drawn: `--origin draw --min-track-std-mgal {a.min_track_std_mgal:g}`, seed {a.seed}; map "
+                       f"STD along the track after the cut {std:.1f} mGal)")
+        print(f"origin drawn: {a.origin}{origin_note}", flush=True)
     work = Path(a.work)
     work.mkdir(parents=True, exist_ok=True)
     runs = {"aided": run_once(a, "aided", work), "ins": _ins_run(a, work)}
@@ -218,7 +259,7 @@ def main(argv=None) -> int:
         "",
         f"`{cmd}`",
         "",
-        f"Simulated {'ship' if a.cruise_speed < 30 else 'aircraft'}: {a.hours:g} h lawn-mower survey at {a.cruise_speed:g} m/s from {a.origin} over the Tasman "
+        f"Simulated {'ship' if a.cruise_speed < 30 else 'aircraft'}: {a.hours:g} h lawn-mower survey at {a.cruise_speed:g} m/s from {a.origin}{origin_note} over the Tasman "
         f"grid (Sandwell & Smith V15.2, ~2.9 km cells), lines {a.line_km:g} km, {a.spacing_km:g} km apart; "
         f"{a.sensors} sensors (companion.sim.flight.SENSOR_SETS; navigator settings "
         f"{NAV_SETTINGS[a.sensors] or 'defaults'}); IMU "
