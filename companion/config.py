@@ -133,11 +133,13 @@ class Config:
         return out
 
     def nav_config(self):
-        """The NavigatorConfig of the run: defaults (gravity-aided: gravity_nav_config) with [navigator] applied."""
+        """The NavigatorConfig of the run: defaults (gravity-aided: gravity_nav_config; the sequential filter's fixes
+        correct the position only) with [navigator] applied."""
         if self.gravity.map:
             from companion.gravity.stage import gravity_nav_config
 
-            return gravity_nav_config(**self.navigator)
+            return gravity_nav_config(**{"position_fix_position_only": self.gravity.matcher == "sequential",
+                                         **self.navigator})
         if not self.navigator:
             return None
         from companion.nav.navigator import NavigatorConfig

@@ -144,3 +144,14 @@ def test_every_numeric_setting_has_a_range_holding_its_default():
             assert rng[0] <= v <= rng[1], f"{name}.{f.name} default {v} outside {rng}"
             checked += 1
     assert checked > 80
+
+
+def test_the_sequential_gravity_filter_corrects_the_navigator_position_only(tmp_path):
+    """Its fixes are a running filter's output: the navigator takes them as position only, unless told otherwise."""
+    (tmp_path / "map.nc").write_bytes(b"")  # the settings check only that the file is there
+    base = {"link.connect": "tcp:127.0.0.1:5760", "gravity.map": str(tmp_path / "map.nc")}
+    assert not load_config(None, base).nav_config().position_fix_position_only  # the Viterbi default
+    seq = {**base, "gravity.matcher": "sequential"}
+    assert load_config(None, seq).nav_config().position_fix_position_only
+    told = load_config(None, {**seq, "navigator.position_fix_position_only": False})
+    assert not told.nav_config().position_fix_position_only

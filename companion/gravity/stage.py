@@ -348,7 +348,8 @@ def gravity_replay_pipeline(sink, lmap: LocalGravityMap, denial: GnssDenial, *,
             m = make_matcher(matcher, lmap, sigma_mgal) if isinstance(matcher, str) else matcher
             stages.append(GravityMatchStage(lmap, m, placement, sigma_floor_m=sigma_floor_m, acceptance=acceptance))
     stages += [Injector(inject_config or InjectConfig(mode="shadow")), DenialErrorStage(denial)]
-    return build_pipeline(sink, nav_config=nav_config or gravity_nav_config(), filters=[GnssDenialStage(denial)],
+    nav_config = nav_config or gravity_nav_config(position_fix_position_only=matcher == "sequential")
+    return build_pipeline(sink, nav_config=nav_config, filters=[GnssDenialStage(denial)],
                           extra_stages=stages)
 
 

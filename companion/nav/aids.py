@@ -125,7 +125,8 @@ class Aids:
                 and math.isfinite(sn) and math.isfinite(se)):
             return
         z = self.frame.ned_tuple(ev.lat_deg, ev.lon_deg, self._ref[2])[:2]
-        m = HorizontalPositionMeasurement(ev.t_s, "position_fix", z, sn, se, self.config.position_fix_gate_chi2)
+        m = HorizontalPositionMeasurement(ev.t_s, "position_fix", z, sn, se, self.config.position_fix_gate_chi2,
+                                          self.config.position_fix_position_only)
         if self.mode == "ins":
             ok, y = self._ins_apply(m)
         else:

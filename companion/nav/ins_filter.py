@@ -89,7 +89,7 @@ class InsFilter:
         )
         if not ok:
             return False, y
-        kf.update(y.reshape(-1, 1), R=R, H=H)
+        kf.update(y.reshape(-1, 1), R=R, H=H, gain_rows=m.gain_rows_ins())
         dx = kf.x.ravel().tolist()  # Python floats: the same values, and the strapdown INS (plain Python, every IMU
         # sample) then runs on floats rather than numpy scalars, which are several times slower per operation
         self._correct_ins(dx[0:3], dx[3:6], dx[6:9], dx[9:12], dx[12:15])

@@ -30,13 +30,18 @@ class KalmanFilter:
         self.x = np.dot(F, self.x)
         self.P = np.dot(np.dot(F, self.P), F.T) + Q
 
-    def update(self, z: np.ndarray, R: np.ndarray, H: np.ndarray) -> None:
+    def update(self, z: np.ndarray, R: np.ndarray, H: np.ndarray, gain_rows: np.ndarray | None = None) -> None:
         """z (m x 1) measured as H x + v, v ~ N(0, R): gain K = P H' S^-1, S = H P H' + R; Joseph-form covariance
-        P = (I - K H) P (I - K H)' + K R K' (stays symmetric and positive under rounding)."""
+        P = (I - K H) P (I - K H)' + K R K' (stays symmetric and positive under rounding, and is the covariance of
+        any gain). ``gain_rows`` (boolean, dim_x): only these states are corrected, the others' gain rows are zero
+        (a consider or Schmidt-Kalman update: they keep their estimates, their covariance with the corrected ones is
+        carried by the Joseph form)."""
         y = z - np.dot(H, self.x)
         PHT = np.dot(self.P, H.T)
         S = np.dot(H, PHT) + R
         K = np.dot(PHT, inverse(S))
+        if gain_rows is not None:
+            K = K * gain_rows.reshape(-1, 1)
         self.x = self.x + np.dot(K, y)
         I_KH = self._I - np.dot(K, H)
         self.P = np.dot(np.dot(I_KH, self.P), I_KH.T) + np.dot(np.dot(K, R), K.T)

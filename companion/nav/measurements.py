@@ -24,6 +24,9 @@ def _selection(rows: int, first: int) -> np.ndarray:
 
 
 _H_POS, _H_NE, _H_VEL, _H_ATT = _selection(3, 0), _selection(2, 0), _selection(3, 3), _selection(3, 6)
+_POSITION_ROWS = np.zeros(15, dtype=bool)
+_POSITION_ROWS[0:3] = True
+_POSITION_ROWS.flags.writeable = False
 _H_DOWN = np.zeros((1, 15))
 _H_DOWN[0, 2] = 1.0
 _H_DOWN.flags.writeable = False
@@ -65,6 +68,10 @@ class Measurement:
     delay_s = None  # class attribute, not a field
 
     def R_gate(self) -> np.ndarray | None:
+        return None
+
+    def gain_rows_ins(self) -> np.ndarray | None:
+        """The error states the update may correct (boolean, 15); None: every state."""
         return None
 
     def compute_ins(self, s: InsView) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -119,7 +126,12 @@ class HorizontalPositionMeasurement(Measurement):
     sigma_n_m: float = 1.0
     sigma_e_m: float = 1.0
     gate_chi2: float = CHI2_2DOF_999
+    # True: it corrects the INS position only (NavigatorConfig.position_fix_position_only)
+    position_only: bool = False
     delay_s = 0.0
+
+    def gain_rows_ins(self) -> np.ndarray | None:
+        return _POSITION_ROWS if self.position_only else None
 
     def z(self):
         return np.asarray(self.z_ne_m, dtype=float)

@@ -57,3 +57,30 @@ def test_a_singular_innovation_covariance_still_raises():
     kf.P = np.zeros((2, 2))
     with pytest.raises(np.linalg.LinAlgError):
         kf.update(np.ones((2, 1)), R=np.zeros((2, 2)), H=np.eye(2))
+
+
+def test_a_restricted_gain_corrects_only_its_states_and_keeps_an_honest_covariance():
+    """gain_rows (a Schmidt update): the other states keep their estimates, and P is the covariance of the error
+    the restricted gain leaves (checked on 40000 draws from the prior)."""
+    rng = np.random.default_rng(4)
+    A = rng.normal(size=(4, 4))
+    P0 = A @ A.T + np.eye(4)  # position-velocity-like correlations
+    H = np.array([[1.0, 0.0, 0.0, 0.0]])
+    R = np.array([[0.5]])
+    rows = np.array([True, False, True, False])
+    kf = KalmanFilter(dim_x=4, dim_z=1)
+    kf.P = P0.copy()
+    kf.update(np.array([[2.0]]), R=R, H=H, gain_rows=rows)
+    assert kf.x[1, 0] == 0.0 and kf.x[3, 0] == 0.0 and kf.x[0, 0] != 0.0 and kf.x[2, 0] != 0.0
+    # the same gain applied to many truths drawn from the prior: the error covariance is kf.P
+    K = (P0 @ H.T / (H @ P0 @ H.T + R)[0, 0]) * rows.reshape(-1, 1)
+    truth = rng.multivariate_normal(np.zeros(4), P0, size=40000)
+    z = truth @ H.T + rng.normal(0.0, np.sqrt(R[0, 0]), size=(40000, 1))
+    err = truth - z @ K.T
+    np.testing.assert_allclose(np.cov(err.T), kf.P, rtol=0.05, atol=0.02 * np.abs(P0).max())
+    # every row allowed: the ordinary update, bit for bit
+    a, b = KalmanFilter(dim_x=4, dim_z=1), KalmanFilter(dim_x=4, dim_z=1)
+    a.P, b.P = P0.copy(), P0.copy()
+    a.update(np.array([[2.0]]), R=R, H=H)
+    b.update(np.array([[2.0]]), R=R, H=H, gain_rows=np.ones(4, dtype=bool))
+    assert np.array_equal(a.x, b.x) and np.array_equal(a.P, b.P)

@@ -81,3 +81,37 @@ def test_autopilot_altitude_holds_the_height_once_gnss_is_gone():
     ups = [o for o in out if isinstance(o, MeasurementUpdate) and o.kind == "altitude"]
     assert ups and min(u.t_s for u in ups) > t0 + CUT_S  # fused only after the cut
     assert sum(u.accepted for u in ups) > 0.95 * len(ups)
+
+
+def test_position_only_fixes_leave_the_velocity_to_the_ins():
+    """NavigatorConfig.position_fix_position_only: a PositionFix moves the INS position and nothing else. Fixes
+    with a common 300 m offset (a running filter's slowly varying error) give the full update a velocity error from
+    the cross-covariance the coast built up; the position-only update leaves the velocity as the free INS has it."""
+    from companion.nav.navigator import NavigatorConfig
+
+    noise = SimNoise(accel_bias_mps2=(0.08, -0.06, 0.05), gyro_bias_radps=(0.004, -0.003, 0.002))
+    sim = simulate_circle_flight(150.0, np.random.default_rng(3), noise=noise)
+    t0 = sim.events[0].t_s
+    events = [e for e in sim.events if not (isinstance(e, GnssFix) and e.t_s > t0 + CUT_S)]
+    fixes = []
+    for f in _fixes(sim, np.random.default_rng(7), 50.0, 5.0, t0 + 60.0):
+        n, e, _ = sim.frame.to_ned_m(f.lat_deg, f.lon_deg, 0.0)
+        lat, lon, _ = sim.frame.to_geodetic(np.array([n + 300.0, e, 0.0]))
+        fixes.append(PositionFix(f.t_s, float(lat), float(lon), 50.0, 50.0, "test"))
+
+    def vel_err(out):
+        fused = [o for o in out if isinstance(o, FusedState) and o.t_s >= t0 + 60.0]
+        t = np.array([o.t_s for o in fused])
+        v = np.array([(o.vel_n_mps, o.vel_e_mps) for o in fused])
+        vt = np.stack([np.interp(t, sim.truth_t_s, np.gradient(sim.truth_pos_ned_m[:, i], sim.truth_t_s))
+                       for i in range(2)], 1)
+        return np.hypot(*(v - vt).T)
+
+    free = vel_err(run_navigator(events))
+    full = vel_err(run_navigator(events + fixes))
+    only = run_navigator(events + fixes, NavigatorConfig(position_fix_position_only=True))
+    ups = [o for o in only if isinstance(o, MeasurementUpdate) and o.kind == "position_fix"]
+    assert sum(u.accepted for u in ups) > 0.9 * len(fixes)
+    # the velocity is the free INS's (but for the position's own effect on gravity and the transport rate)
+    assert np.abs(vel_err(only) - free).max() < 0.01
+    assert full.max() > free.max() + 0.5  # the full update moved the velocity (here, away from the truth)
