@@ -146,18 +146,20 @@ def draw_origin(seed: int, speed_mps: float, hours: float, line_km: float, spaci
 
 
 def _ins_run(a, work: Path) -> dict:
-    """The INS-alone run, reused from ``work`` when the same scenario was flown there before (it does not depend on
-    the aided run's matcher or settings)."""
+    """The INS-alone run, reused from ``work`` when the same scenario was flown there before and kept up with its
+    input (it does not depend on the aided run's matcher or settings)."""
     key = [a.hours, a.speed_up, a.cruise_speed, a.origin, a.line_km, a.spacing_km, a.gnss_off_s, a.sigma_mgal, a.seed,
            a.imu_hz, a.gnss_hz, a.sensors, str(Path(a.map).resolve())]
     cache = work / "ins_runs.json"
     known = json.loads(cache.read_text()) if cache.exists() else []
     for entry in known:
-        if entry["key"] == key:
+        if entry["key"] == key and entry["run"]["lag"]["valid"]:  # an invalid run is flown again
             print("ins: reused from an earlier run of the same scenario in", work, flush=True)
             r = entry["run"]
             return {**r, **{k: np.array(r[k]) for k in ("t_s", "err_m", "fix_type", "h_acc_m")}, "reused": True}
     r = run_once(a, "ins", work)
+    if not r["lag"]["valid"]:
+        return r
     known.append({"key": key, "run": {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in r.items()}})
     cache.write_text(json.dumps(known))
     return r
@@ -326,7 +328,8 @@ def main(argv=None) -> int:
     ax.axvline(0.0, color="k", lw=0.6, ls="--")
     ax.set_xlabel("hours after the GNSS cut")
     ax.set_ylabel("injected position error (km)")
-    ax.set_yscale("log")
+    if scored:  # a log scale needs data: with every run invalid the axes stay empty (and say why)
+        ax.set_yscale("log")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=8)  # beside the data
     # the span drawn, from the data: the planned flight is longer when the injector stopped early
