@@ -172,5 +172,5 @@ def test_select_kinematic_streaming_equals_batch():
     assert [o.to_dict() for o in stream] == [o.to_dict() for o in batch]
     used = [o.measurement for o in batch if isinstance(o, FusedState) and 161.6 <= o.t_s < 164.0]
     assert used and all("motion_prior" in u for u in used)
-    off = run_navigator(ev, NavigatorConfig())
+    off = run_navigator(ev, NavigatorConfig(motion=MotionPriorConfig(select=False)))
     assert [o.to_dict() for o in off] != [o.to_dict() for o in batch]
