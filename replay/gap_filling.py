@@ -318,12 +318,18 @@ def throughput(log: LogData, cfg: NavigatorConfig) -> tuple[float, float, float,
     return log.duration_s / cpu, wall, cpu, mode
 
 
-def _apply_overrides(cfg: NavigatorConfig, overrides: list[str]) -> NavigatorConfig:
-    """``FIELD=VALUE`` strings -> a NavigatorConfig with those fields replaced (typed like the default)."""
+def _apply_overrides(cfg, overrides: list[str]):
+    """``FIELD=VALUE`` strings -> a NavigatorConfig with those fields replaced (typed like the default); a nested
+    settings field as ``GROUP.FIELD=VALUE`` (e.g. ``motion.select=true``)."""
     types = {f.name: type(getattr(cfg, f.name)) for f in dataclasses.fields(cfg)}
     kw = {}
+    nested: dict[str, list[str]] = {}
     for item in overrides:
         name, sep, val = item.partition("=")
+        group, dot, sub = name.partition(".")
+        if dot and group in types and dataclasses.is_dataclass(getattr(cfg, group)):
+            nested.setdefault(group, []).append(f"{sub}={val}")
+            continue
         if not sep or name not in types:
             raise SystemExit(f"--set {item!r}: expected FIELD=VALUE with FIELD one of {sorted(types)}")
         ty = types[name]
@@ -331,6 +337,8 @@ def _apply_overrides(cfg: NavigatorConfig, overrides: list[str]) -> NavigatorCon
             kw[name] = val.strip().lower() in ("1", "true", "yes", "on")
         else:
             kw[name] = ty(val)
+    for group, items in nested.items():
+        kw[group] = _apply_overrides(getattr(cfg, group), items)
     return dataclasses.replace(cfg, **kw)
 
 

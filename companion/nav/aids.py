@@ -43,16 +43,27 @@ class Aids:
 
     def _motion_learn(self, t: float, z, v3, sh: float, sv: float) -> None:
         """An accepted fix for the motion prior, with the INS state and its free (uncorrected) trajectory."""
-        ins = None
+        ins, epoch = None, self._ins_epoch
         if self.mode == "ins" and self.ins is not None:
             i = self.ins
             p, v = self.frame.ned_tuple(i.lat_deg, i.lon_deg, i.h_m), i.vel_ned
             ins = (p, v, *self._ins_free(p, v))
-        self.motion.add_fix(t, z, v3, (sh * sh, sh * sh, sv * sv), self.hover.hover(t), ins, self._ins_epoch)
+        elif self.motion.config.select and self._kin is not None:  # the kinematic filter's dead reckoning: x + v dt
+            x = self._kin.x.ravel().tolist()
+            ins, epoch = (x[0:3], x[3:6], (0.0,) * 3, (0.0,) * 3), -2
+        self.motion.add_fix(t, z, v3, (sh * sh, sh * sh, sv * sv), self.hover.hover(t), ins, epoch)
 
     def _motion_blend(self, t: float, ned, P: np.ndarray):
         """The output position after the product with the motion prior (companion.nav.motion_prior), and its
         covariance; unchanged while the prior has nothing to say."""
+        if self.motion.config.select and self.mode != "ins":  # see MotionPriorConfig.select
+            sel = self.motion.select(t, ned)
+            if sel is None:
+                return ned, P
+            P = P.copy()
+            P[0, 0], P[1, 1], P[2, 2] = sel[1]
+            self._used.add("motion_prior")
+            return tuple(sel[0]), P
         prior = self.motion.predict(t)
         if prior is None:
             return ned, P

@@ -64,6 +64,15 @@ def reset_position(kf: KalmanFilter, z, R) -> None:
     kf.P[0:3, 3:6] = kf.P[3:6, 0:3] = 0.0
 
 
+def reset_velocity(kf: KalmanFilter, v, var: float) -> None:
+    """Each finite velocity component set to v with variance var, uncorrelated with the rest (a reset to GNSS)."""
+    for i, vi in enumerate(v):
+        if math.isfinite(vi):
+            kf.x[3 + i, 0] = float(vi)
+            kf.P[3 + i, :] = kf.P[:, 3 + i] = 0.0
+            kf.P[3 + i, 3 + i] = var
+
+
 class CvFilter:
     """The constant-velocity model alone (``kinematic_hold_cv`` off), with HoldCvFilter's interface."""
 
@@ -89,6 +98,9 @@ class CvFilter:
 
     def reset_position(self, z, R) -> None:
         reset_position(self.kf, z, R)
+
+    def reset_velocity(self, v, var: float) -> None:
+        reset_velocity(self.kf, v, var)
 
 
 class HoldCvFilter:
@@ -161,6 +173,11 @@ class HoldCvFilter:
         """Both models' position set to z with covariance R, uncorrelated with the velocity (a reset to GNSS)."""
         for m in self.models:
             reset_position(m, z, R)
+        self._combine()
+
+    def reset_velocity(self, v, var: float) -> None:
+        """The CV model's velocity set to the fix's (the hold model's stays zero)."""
+        reset_velocity(self.models[CV], v, var)
         self._combine()
 
     def _combine(self) -> None:

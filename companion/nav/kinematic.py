@@ -60,8 +60,11 @@ class KinematicFilter:
         ok, y, nis = self._kin_apply(m, record)
         if m.kind == "gnss_pos" and record:
             ok = self._gate_bookkeeping(m.t_s, ok, y, m.sigma_h_m, m.sigma_v_m)
-            if ok and nis > m.gate_chi2:  # reset after persistent rejection
+            if ok and nis > m.gate_chi2:  # reset after persistent rejection: position, and velocity when the fix has it
                 kf.reset_position(m.z(), m.R())
+                if self._fix_vel is not None:
+                    c = self.config
+                    kf.reset_velocity(self._fix_vel, c.gnss_vel_sigma_mps**2 * c.reset_cov_scale)
                 self._last_innov = tuple(float(v) for v in y)
                 return True
         if not ok:

@@ -113,3 +113,64 @@ def test_full_navigator_no_worse_than_hold_on_a_loiter():
     rmse = {k: float(np.sqrt(np.mean(v))) for k, v in sq.items()}
     assert rmse[False] > 1.3 * rmse["hold"], rmse  # the INS alone loses to holding the last fix ...
     assert rmse[True] <= 1.1 * rmse["hold"], rmse  # ... the motion prior keeps the navigator within 10 % of it
+
+
+def test_nonneg_blue_weights():
+    """Independent models: inverse-variance weights; a model whose unconstrained weight would be negative is dropped,
+    and the mix is never worse than the best single model."""
+    from companion.nav.motion_prior import _nonneg_blue
+
+    w = _nonneg_blue(np.diag([1.0, 4.0, 4.0]))
+    assert w == pytest.approx([2 / 3, 1 / 6, 1 / 6])
+    S = np.array([[1.0, 0.99, 0.0], [0.99, 1.0, 0.0], [0.0, 0.0, 9.0]]) * 1.0
+    S[1, 1] = 1.2  # the second model: the first one's error plus a little more of the same sign
+    w = _nonneg_blue(S)
+    assert np.all(w >= 0) and w.sum() == pytest.approx(1.0)
+    assert float(w @ S @ w) <= min(np.diag(S)) + 1e-12
+
+
+def _select_run(filter_vel_noise: float, seed: int = 3):
+    """A loiter fed with a filter's state at each fix: position = the fix, velocity = the mean velocity of the next
+    10 s (a dead reckoning that knows where the vehicle goes) plus noise of filter_vel_noise; then a prediction 10 s
+    after the last fix."""
+    rng = np.random.default_rng(seed)
+    t, p, v = _loiter(rng, n_s=600)
+    mp = MotionPrior(MotionPriorConfig(select=True, variance_scale=1.0, tau_s=600.0))
+    for k in range(len(t)):
+        j = min(k + 10, len(t) - 1)
+        vf = (p[j] - p[k]) / max(t[j] - t[k], 1.0) + rng.normal(0, filter_vel_noise, 3) * np.array([1, 1, 0])
+        mp.add_fix(t[k], p[k], v[k], (0.01,) * 3, ins=(p[k], vf, (0.0,) * 3, (0.0,) * 3), ins_epoch=-2)
+    return mp, t[-1], p[-1]
+
+
+def test_select_follows_the_filter_only_as_far_as_its_record_on_this_flight_allows():
+    good, t_end, p_end = _select_run(0.01)
+    bad, _, _ = _select_run(3.0)
+    far = tuple(p_end + (100.0, 100.0, 0.0))  # the filter's estimate at the prediction time, far from hold and CV
+    assert good.select(t_end + 0.5, far) is None  # before min_age_s
+    out_good, var_good = good.select(t_end + 10.0, far)
+    out_bad, var_bad = bad.select(t_end + 10.0, far)
+    # the dead reckoning that matched this flight's fixes at 10 s takes most of the weight ...
+    assert out_good[0] - p_end[0] > 80.0 and out_good[1] - p_end[1] > 80.0
+    # ... the one whose record is 3 m/s x 10 s off is all but ignored
+    assert abs(out_bad[0] - p_end[0]) < 15.0 and abs(out_bad[1] - p_end[1]) < 15.0
+    assert var_good[0] < var_bad[0]
+    assert MotionPrior().select(1.0, far) is None
+
+
+def test_select_kinematic_streaming_equals_batch():
+    """Kinematic mode with the selection on: event-by-event processing gives the batch replay's outputs."""
+    from companion.nav.navigator import Navigator
+    from tests.nav.test_hold_cv import _kin_hover_events
+
+    ev, _truth, _ = _kin_hover_events(np.random.default_rng(11), n=120)
+    ev = [e for e in ev if not 160.0 <= e.t_s < 164.0]
+    cfg = NavigatorConfig(motion=MotionPriorConfig(select=True))
+    batch = run_navigator(ev, cfg)
+    nav = Navigator(cfg)
+    stream = [o for e in ev for o in nav.process(e)] + nav.finish()
+    assert [o.to_dict() for o in stream] == [o.to_dict() for o in batch]
+    used = [o.measurement for o in batch if isinstance(o, FusedState) and 161.6 <= o.t_s < 164.0]
+    assert used and all("motion_prior" in u for u in used)
+    off = run_navigator(ev, NavigatorConfig(motion=MotionPriorConfig(select=False)))
+    assert [o.to_dict() for o in off] != [o.to_dict() for o in batch]

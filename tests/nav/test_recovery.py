@@ -181,3 +181,48 @@ def test_persistent_attitude_rejection_resets_tilt():
     n = NavigatorConfig()
     assert n.att_reset_after_n_rejected > 1
     assert all(isinstance(e, (ImuSample, GnssFix, Attitude)) for e in events)
+
+
+def _kinematic_turning_flight(rng, speed_mps=8.0, n=200, turn_every=20, rate_deg_s=30.0):
+    """No IMU (kinematic mode): 1 Hz fixes of a vehicle at speed_mps that turns at rate_deg_s to a new random heading
+    every turn_every s (~4 m/s^2 in a turn: twice the CV model's acceleration sigma), and the autopilot's attitude."""
+    from companion.events import Attitude
+
+    lat0, lon0, alt0 = -35.3632, 149.1652, 600.0
+    ev, truth = [], []
+    pn = pe = hd = tgt = 0.0
+    for k in range(n):
+        t = 100.0 + k + 0.05
+        if k % turn_every == 0 and k:
+            tgt = hd + rng.uniform(-np.pi, np.pi)
+        hd += float(np.clip(tgt - hd, -np.radians(rate_deg_s), np.radians(rate_deg_s)))
+        vn, ve = speed_mps * np.cos(hd), speed_mps * np.sin(hd)
+        pn, pe = pn + vn, pe + ve
+        truth.append((t, pn, pe, vn, ve))
+        mn, me = pn + rng.normal(0, 0.2), pe + rng.normal(0, 0.2)
+        ev.append(GnssFix(round(t, 6), 3, lat0 + mn / 111_000.0, lon0 + me / 91_000.0, alt0,
+                          float(vn + rng.normal(0, 0.1)), float(ve + rng.normal(0, 0.1)), 0.0, None, None, 12, 0.8,
+                          1.2, 0.8, 1.2, 0.3, None, None))
+    ev += [Attitude(round(100.0 + k / 10.0, 6), 0.0, 0.0, 0.0) for k in range(n * 10)]
+    ev.sort(key=lambda x: x.t_s)
+    return ev, np.array(truth), (lat0, lon0)
+
+
+def test_kinematic_reset_after_rejection_takes_the_fix_velocity():
+    """Kinematic mode: a reset after persistent rejection takes the fix's velocity as well as its position. Each hard
+    turn here still has the CV model's fixes rejected for gate_reset_s (its acceleration sigma is half the turn's),
+    but with the position alone the stale velocity had the next fixes rejected again: a reset every 6 s (20 in this
+    flight, 79 of 199 fixes accepted); with the velocity one per turn at most."""
+    ev, truth, (lat0, lon0) = _kinematic_turning_flight(np.random.default_rng(0))
+    out = run_navigator(ev)
+    fs = [o for o in _fused(out) if o.t_s > 110.0]
+    assert fs and all(o.mode == "kinematic" for o in fs)
+    resets = [o for o in out if isinstance(o, NavigatorReset) and o.kind == "gnss_rejected"]
+    assert 0 < len(resets) <= 10  # 10 turns
+    ups = [u for u in out if isinstance(u, MeasurementUpdate) and u.kind == "gnss_pos"]
+    assert np.mean([u.accepted for u in ups]) > 0.7
+    for r in resets:  # the first output after the reset has about the fix's velocity (8 m/s, turning at ~4 m/s^2)
+        o = next(o for o in fs if o.t_s > r.t_s)
+        dv = np.hypot(o.vel_n_mps - np.interp(o.t_s, truth[:, 0], truth[:, 3]),
+                      o.vel_e_mps - np.interp(o.t_s, truth[:, 0], truth[:, 4]))
+        assert dv < 2.5, (r, dv)  # the mixture with the hold model (zero velocity) takes a little off
