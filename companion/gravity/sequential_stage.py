@@ -31,9 +31,9 @@ recorded for reporting).
 from __future__ import annotations
 
 import math
-from collections import Counter, deque
+from collections import Counter
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
@@ -41,10 +41,9 @@ from companion.events import Event, GravityReading, PositionFix
 from companion.gravity.eotvos import eotvos_from_ne_mgal
 from companion.gravity.maps import LocalGravityMap
 from companion.gravity.placement import MapView, Placement
+from companion.gravity.reading_stage import GravityReadingStage
 from companion.gravity.sequential import InsErrorSpec, SeqGravConfig, SequentialGravityFilter
-from companion.nav.outputs import FrameInfo, FusedState
-from companion.pipeline.denial import frame_of
-from companion.pipeline.stage import Stage
+from companion.nav.outputs import FusedState
 
 #: a fix leaves this as a position sigma on an axis the filter adds nothing to (no information there)
 NO_INFO_SIGMA_M = 1.0e7
@@ -84,7 +83,7 @@ def channel_fix(m_filter: float, p_filter: float, x_nav: float, p_nav: float, mi
     return r * (m_filter / p_filter - x_nav / p_nav), r
 
 
-class SequentialGravityStage(Stage):
+class SequentialGravityStage(GravityReadingStage):
     """FusedState + GravityReading -> SequentialGravityFilter.feed -> PositionFix + SequentialRecord (module doc).
 
     A reading is used once a FusedState at or after its time is seen (older than every state: dropped)."""
@@ -103,10 +102,9 @@ class SequentialGravityStage(Stage):
         self.min_gain = float(min_gain)
         self.gnss_recent_s = float(gnss_recent_s)
         self.matcher_name = f"sequential-{self.cfg.method}"
-        self._frame = None
+        super().__init__()
         self._prev: tuple[FusedState, np.ndarray] | None = None  # last state and its map sample
         self._acc_ne = np.zeros(2)  # map-frame acceleration over the previous output interval
-        self._pending: deque[GravityReading] = deque()
         self._fix_out = False  # a fix was sent and the navigator has not reported fusing it yet
         self.n_readings = self.n_fixes = self.n_corrections = 0
         self.status_counts: Counter = Counter()
@@ -114,16 +112,6 @@ class SequentialGravityStage(Stage):
         self.cpu_s: list[float] = []
 
     # -- stream ------------------------------------------------------------------------------------
-    def process(self, item: Any) -> list[Event]:
-        if isinstance(item, FrameInfo):
-            self._frame = frame_of(item)
-        elif isinstance(item, GravityReading):
-            if math.isfinite(item.gravity_mgal):
-                self._pending.append(item)
-        elif isinstance(item, FusedState) and self._frame is not None:
-            return self._state(item)
-        return []
-
     def _state(self, s: FusedState) -> list[Event]:
         x = self.view.state(s, self._frame)
         if not np.all(np.isfinite(x)):

@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
@@ -26,12 +26,12 @@ from companion.events import Event, GravityReading, PositionFix
 from companion.gravity.maps import LocalGravityMap
 from companion.gravity.matchers.base import Matcher, MatchResult
 from companion.gravity.placement import MapView, Placement
+from companion.gravity.reading_stage import GravityReadingStage
 from companion.inject import InjectConfig, Injector
-from companion.nav.frame import LocalFrame
 from companion.nav.navigator import NavigatorConfig
-from companion.nav.outputs import FrameInfo, FusedState
+from companion.nav.outputs import FusedState
 from companion.pipeline.core import Pipeline, build_pipeline
-from companion.pipeline.denial import DenialErrorStage, GnssDenial, GnssDenialStage, frame_of
+from companion.pipeline.denial import DenialErrorStage, GnssDenial, GnssDenialStage
 from companion.pipeline.stage import Stage
 from companion.sim.gravimeter import GravitySimStage, SimulatedGravimeter
 
@@ -136,7 +136,7 @@ class MatchSample:
         return cls(*(float(v) for v in row))
 
 
-class GravityMatchStage(Stage):
+class GravityMatchStage(GravityReadingStage):
     """Online map matching: FusedState (navigator positions, velocities) + GravityReading -> Matcher.feed
     -> PositionFix (sigma = max(matcher sigma, sigma_floor_m)) + MatchRecord.
 
@@ -178,10 +178,9 @@ class GravityMatchStage(Stage):
         self.navigator_prior = bool(navigator_prior) and matcher.supports_prior
         self.sigma_mgal = float(sigma_mgal if sigma_mgal is not None else
                                 (matcher.sigma_z_mgal if matcher.sigma_z_mgal is not None else 1.0))
-        self._frame: LocalFrame | None = None
+        super().__init__()
         self._prev: FusedState | None = None
         self._prev_x: np.ndarray | None = None  # the previous state laid on the map, once needed
-        self._pending: deque[GravityReading] = deque()
         self._acc: list[MatchSample] = []  # readings of the current stretch (map NE)
         self._acc_dist_m = 0.0  # track length of the stretch, from the last reading of the previous one
         self._acc_last: MatchSample | None = None
@@ -189,28 +188,21 @@ class GravityMatchStage(Stage):
         self.results: list[MatchResult] = []  # ok matches, in map NE
         self.n_fed = self.n_fixes = self.n_failed = self.n_rejected = 0
 
-    def process(self, item: Any) -> list[Event]:
-        if isinstance(item, FrameInfo):
-            self._frame = frame_of(item)
-        elif isinstance(item, GravityReading):
-            if math.isfinite(item.gravity_mgal):
-                self._pending.append(item)
-        elif isinstance(item, FusedState) and self._frame is not None:
-            out: list[Event] = []
-            prev, self._prev = self._prev, item
-            xa, xb = self._prev_x, None
-            while self._pending and self._pending[0].t_s <= item.t_s:
-                r = self._pending.popleft()
-                if prev is None or r.t_s < prev.t_s:
-                    continue
-                if xa is None:
-                    xa = self._map_sample(prev)
-                if xb is None:
-                    xb = self._map_sample(item)
-                out += self._reading(r, prev, item, xa, xb)
-            self._prev_x = xb
-            return out
-        return []
+    def _state(self, item: FusedState) -> list[Event]:
+        out: list[Event] = []
+        prev, self._prev = self._prev, item
+        xa, xb = self._prev_x, None
+        while self._pending and self._pending[0].t_s <= item.t_s:
+            r = self._pending.popleft()
+            if prev is None or r.t_s < prev.t_s:
+                continue
+            if xa is None:
+                xa = self._map_sample(prev)
+            if xb is None:
+                xb = self._map_sample(item)
+            out += self._reading(r, prev, item, xa, xb)
+        self._prev_x = xb
+        return out
 
     def _map_sample(self, s: FusedState) -> np.ndarray:
         """(north, east, v_north, v_east) of a navigator state in map metres (velocity: map metres per second)."""

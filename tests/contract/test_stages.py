@@ -4,6 +4,7 @@ the same outputs for the same input. All of them run in the gravity-aided replay
 
 from __future__ import annotations
 
+import inspect
 import math
 
 import pytest
@@ -48,7 +49,7 @@ def _run(events, matcher="viterbi"):
 
 
 def test_every_stage_of_the_package_is_under_contract_and_in_the_replay_pipeline(events):
-    product = {c for c in subclasses(Stage) if c.__module__.startswith("companion.")}
+    product = {c for c in subclasses(Stage) if c.__module__.startswith("companion.") and not inspect.isabstract(c)}
     assert product == STAGES
     in_pipelines = set()
     for matcher in ("viterbi", "sequential"):
