@@ -188,15 +188,21 @@ class MotionPrior:
         k = (age / g) ** power
         return tuple(s[g] / w[g] * k for s in sums)
 
-    def predict(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
-        """Mean and variance per NED axis of the motion prior at time t, and the INS dead-reckoning error variance
-        learnt for this age (None without it); None if too early or nothing learnt."""
+    def _since_last(self, t: float):
+        """(age, position, velocity, variance) of the last fix at time t; None before any fix or before min_age_s."""
         if self._last is None:
             return None
         t0, p, v, var = self._last
         age = t - t0
-        if age < self.config.min_age_s:
+        return None if age < self.config.min_age_s else (age, p, v, var)
+
+    def predict(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
+        """Mean and variance per NED axis of the motion prior at time t, and the INS dead-reckoning error variance
+        learnt for this age (None without it); None if too early or nothing learnt."""
+        last = self._since_last(t)
+        if last is None:
             return None
+        age, p, v, var = last
         st = self._moments((self._hh, self._cc, self._hc), self._w, age)
         if st is None:
             return None
@@ -217,12 +223,10 @@ class MotionPrior:
         second moments of the errors each would have made at this age from this flight's past fixes (the filter's
         by its dead reckoning from the fix, see :meth:`add_fix`); variance that of the mix x ``variance_scale``.
         None when too early or nothing learnt."""
-        if self._last is None:
+        last = self._since_last(t)
+        if last is None:
             return None
-        t0, p, v, var = self._last
-        age = t - t0
-        if age < self.config.min_age_s:
-            return None
+        age, p, v, var = last
         hc = self._moments(tuple(self._sel[:3]), self._wi, age, power=2.0)
         ii = self._moments((self._ii,), self._wi, age, power=3.0)
         ix = self._moments(tuple(self._sel[3:]), self._wi, age, power=2.5)
