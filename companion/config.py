@@ -108,6 +108,9 @@ class GravityConfig:
     seq_attitude_heading_sigma_rad: float = 0.0
     seq_noise_corr_s: float = 1.0  # the gravimeter's noise correlation time (its output filter; 1 s: white at 1 Hz)
     seq_min_gain: float = 0.1  # a fix goes out when the filter is this fraction more certain than the navigator
+    # the fix also carries the filter's estimate of the navigator's horizontal velocity (its velocity-error states,
+    # the navigator's own velocity variance divided out); the navigator fuses it as a measurement of its own
+    seq_velocity_fixes: bool = False
 
 
 @dataclass(frozen=True)

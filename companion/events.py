@@ -194,13 +194,19 @@ class PositionFix(Event):
     """A horizontal position measurement that is not GNSS (e.g. a gravity-matching fix), with its own
     1-sigma north/east uncertainty. The Navigator fuses it with its own gate; it never feeds the GNSS
     predictor. ``source`` names the producer ("gravity:viterbi", ...). A stage's PositionFix is fed back to the
-    pipeline's first stages (``feedback``), so the navigator sees it like an input event."""
+    pipeline's first stages (``feedback``), so the navigator sees it like an input event. A producer that also
+    estimates the vehicle's horizontal velocity (the sequential gravity filter) may send it with its 1-sigma; NaN:
+    none (the navigator fuses a finite velocity as a measurement of its own, companion.nav.aids)."""
 
     lat_deg: float
     lon_deg: float
     sigma_n_m: float
     sigma_e_m: float
     source: str = ""
+    vel_n_mps: float = math.nan
+    vel_e_mps: float = math.nan
+    sigma_vn_mps: float = math.nan
+    sigma_ve_mps: float = math.nan
     topic: ClassVar[str] = "/input/position_fix"
     feedback: ClassVar[bool] = True  # a measurement for the navigator, which is the pipeline's first stage
 

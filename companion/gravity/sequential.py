@@ -181,6 +181,10 @@ class SeqGravEstimate:
     ins_h_sigma_m: float  # INS-alone h-sigma the filter carries (prior for re-initialisation)
     map_bias_mgal: float  # estimated map-minus-sensor misfit
     cpu_s: float  # process time spent on this reading (not part of the filter's state)
+    # estimated reference velocity error (reference - truth) and its covariance; None: the back-end has no velocity
+    # states (pmf)
+    vel_err_ne_mps: np.ndarray | None = None
+    vel_cov_ne_m2ps2: np.ndarray | None = None
 
     @property
     def usable(self) -> bool:
@@ -366,9 +370,10 @@ class SequentialGravityFilter:
         else:
             lat_o = lon = float("nan")
         ins_h = float(np.sqrt(self.P_ins[0, 0] + self.P_ins[1, 1]))
+        vel = self.be.velocity_moments() or (None, None)
         return SeqGravEstimate(self.t_s, pos, m.copy(), cov, float(np.sqrt(np.trace(cov))), lat_o, lon, status, n_eff,
                                float(bc), sig_ratio, nis_mean, self.reinit_count, ins_h, b_mean,
-                               time.process_time() - c0)
+                               time.process_time() - c0, *vel)
 
     def apply_correction(self, delta_ne_m, delta_vel_ne_mps=None) -> None:
         """The reference was moved by delta_ne_m, its velocity by delta_vel_ne_mps (a closed-loop correction of the

@@ -261,6 +261,14 @@ class _Mpf:
         m, cov, bc = _weighted_moments(self.xn, self.w)
         return m, cov, bc, 1.0 / float(np.sum(self.w**2)), float(self.w @ self.xl[:, IB]), float(self.Pl[IB, IB])
 
+    def velocity_moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and covariance of the horizontal velocity error: the shared Kalman covariance plus the spread of the
+        particles' conditional means (the law of total covariance)."""
+        v = self.xl[:, IV:IV + 2]
+        m = self.w @ v
+        d = v - m
+        return m, self.Pl[IV:IV + 2, IV:IV + 2] + (self.w[:, None] * d).T @ d
+
     def resample_if_needed(self) -> bool:
         n_eff = 1.0 / float(np.sum(self.w**2))
         if n_eff >= self.cfg.resample_frac * self.n:
@@ -384,6 +392,9 @@ class _Pmf:
         m, cov, bc = _weighted_moments(self.pts, self.w)
         cov = cov + np.eye(2) * self.spacing**2 / 12.0 + self.q_acc  # cell quantisation, pending process noise
         return m, cov, bc, 1.0 / float(np.sum(self.w**2)), float(self.w @ self.b), self.Pb
+
+    def velocity_moments(self) -> None:
+        return None  # no velocity states
 
     def resample_if_needed(self) -> bool:
         """Re-grid when the distribution moved or its spread changed by more than 30 %."""

@@ -47,6 +47,8 @@ from companion.nav.outputs import FusedState
 
 #: a fix leaves this as a position sigma on an axis the filter adds nothing to (no information there)
 NO_INFO_SIGMA_M = 1.0e7
+#: the same for a velocity axis
+NO_INFO_SIGMA_MPS = 1.0e4
 
 
 @dataclass(frozen=True, slots=True)
@@ -90,7 +92,7 @@ class SequentialGravityStage(GravityReadingStage):
 
     def __init__(self, lmap: LocalGravityMap, cfg: SeqGravConfig | None = None, placement: Placement | None = None, *,
                  geographic: bool = False, sigma_mgal: float = 1.0, source: str = "gravity:sequential",
-                 seed: int = 0, min_gain: float = 0.1, gnss_recent_s: float = 2.0) -> None:
+                 seed: int = 0, min_gain: float = 0.1, gnss_recent_s: float = 2.0, velocity_fixes: bool = False) -> None:
         if not (sigma_mgal > 0 and 0.0 <= min_gain < 1.0):
             raise ValueError("sigma_mgal must be > 0 and min_gain in [0, 1)")
         self.lmap = lmap
@@ -101,6 +103,7 @@ class SequentialGravityStage(GravityReadingStage):
         self.source = source
         self.min_gain = float(min_gain)
         self.gnss_recent_s = float(gnss_recent_s)
+        self.velocity_fixes = bool(velocity_fixes)
         self.matcher_name = f"sequential-{self.cfg.method}"
         super().__init__()
         self._prev: tuple[FusedState, np.ndarray] | None = None  # last state and its map sample
@@ -179,7 +182,9 @@ class SequentialGravityStage(GravityReadingStage):
                 z = np.array([ax[0] if ax is not None else x[i] for i, ax in enumerate(axes)])
                 sig = [math.sqrt(ax[1]) if ax is not None else NO_INFO_SIGMA_M for ax in axes]
                 lat_z, lon_z, _ = self.view.to_geodetic(z, self._frame)
-                out.append(PositionFix(float(r.t_s), lat_z, lon_z, sig[0], sig[1], self.source))
+                vel = self._velocity_fix(e, a if w < 0.5 else b, x, w, a, b) if self.velocity_fixes else None
+                out.append(PositionFix(float(r.t_s), lat_z, lon_z, sig[0], sig[1], self.source,
+                                       *(vel if vel is not None else ())))
                 fix_sig = (sig[0], sig[1])
                 sent = True
                 self.n_fixes += 1
@@ -190,6 +195,36 @@ class SequentialGravityStage(GravityReadingStage):
                                        float(e.nis_mean), int(e.reinit_count), float(e.map_bias_mgal), sent, *fix_sig,
                                        float(e.cpu_s)))
         return out
+
+    def _velocity_fix(self, e, s: FusedState, x: np.ndarray, w: float, a: FusedState, b: FusedState):
+        """(vel_n, vel_e, sigma_vn, sigma_ve) in the navigator's NED: its velocity less the filter's estimate of its
+        error, with the navigator's velocity variance divided out per axis as for the position (channel_fix); None
+        when the filter has no velocity states or adds nothing on either axis."""
+        if e.vel_err_ne_mps is None or not np.all(np.isfinite(e.vel_err_ne_mps)) or len(a.cov_diag) < 5:
+            return None
+        A = self._map_to_ned(s, x)
+        dv = A @ e.vel_err_ne_mps
+        pf = np.diag(A @ e.vel_cov_ne_m2ps2 @ A.T)
+        v_nav = ((1 - w) * a.vel_n_mps + w * b.vel_n_mps, (1 - w) * a.vel_e_mps + w * b.vel_e_mps)
+        p_nav = ((1 - w) * a.cov_diag[3] + w * b.cov_diag[3], (1 - w) * a.cov_diag[4] + w * b.cov_diag[4])
+        axes = [channel_fix(v_nav[i] - dv[i], pf[i], v_nav[i], p_nav[i], self.min_gain) for i in range(2)]
+        if all(ax is None for ax in axes):
+            return None
+        z = [ax[0] if ax is not None else v_nav[i] for i, ax in enumerate(axes)]
+        sig = [math.sqrt(ax[1]) if ax is not None else NO_INFO_SIGMA_MPS for ax in axes]
+        return float(z[0]), float(z[1]), sig[0], sig[1]
+
+    def _map_to_ned(self, s: FusedState, x: np.ndarray) -> np.ndarray:
+        """The 2x2 map that turns a map-frame horizontal vector into the navigator's north/east."""
+        if not self.view.geographic:
+            pl = self.view.placement
+            return np.column_stack([pl.to_flight(np.array([1.0, 0.0])) - pl.to_flight(np.zeros(2)),
+                                    pl.to_flight(np.array([0.0, 1.0])) - pl.to_flight(np.zeros(2))])
+        rot = 0.0  # the map's north against the navigator's: the angle between the velocity in both frames
+        if math.hypot(s.vel_n_mps, s.vel_e_mps) > 0.5:
+            rot = math.atan2(x[3], x[2]) - math.atan2(s.vel_e_mps, s.vel_n_mps)
+        c, sn = math.cos(rot), math.sin(rot)
+        return np.array([[c, sn], [-sn, c]])
 
     def _map_heading(self, s: FusedState, x: np.ndarray) -> float | None:
         """The navigator's yaw turned into the map frame (by the angle between its velocity in both frames)."""

@@ -359,7 +359,8 @@ def live_gravity_stage(config) -> Stage:
         from companion.gravity.sequential_stage import SequentialGravityStage, seq_config_of
 
         return SequentialGravityStage(lmap, seq_config_of(config), geographic=True, sigma_mgal=config.sigma_mgal,
-                                      source=f"gravity:{config.named_value}:sequential", min_gain=config.seq_min_gain)
+                                      source=f"gravity:{config.named_value}:sequential", min_gain=config.seq_min_gain,
+                                      velocity_fixes=config.seq_velocity_fixes)
     matcher = make_matcher(config.matcher, lmap, config.sigma_mgal)
     acc = FixAcceptance(config.accept_min_track_cells, config.accept_min_signal_ratio)
     stage = GravityMatchStage(lmap, matcher, geographic=True, acceptance=acc, sigma_mgal=config.sigma_mgal,

@@ -10,7 +10,8 @@ import numpy as np
 
 from companion.constants import receiver_sigma
 from companion.events import GnssFix, PositionFix
-from companion.nav.measurements import (DragMeasurement, HorizontalPositionMeasurement, PositionMeasurement,
+from companion.nav.measurements import (DragMeasurement, HorizontalPositionMeasurement, HorizontalVelocityMeasurement,
+                                        PositionMeasurement,
                                          VelocityMeasurement)
 from companion.nav.motion_prior import blend
 from companion.nav.outputs import PredictorPoint
@@ -138,14 +139,27 @@ class Aids:
         z = self.frame.ned_tuple(ev.lat_deg, ev.lon_deg, self._ref[2])[:2]
         m = HorizontalPositionMeasurement(ev.t_s, "position_fix", z, sn, se, self.config.position_fix_gate_chi2,
                                           self.config.position_fix_position_only)
-        if self.mode == "ins":
-            ok, y = self._ins_apply(m)
-        else:
-            if self._kin is None:
-                return
-            ok, y, _nis = self._kin_apply(m, record=True)
+        if self.mode != "ins" and self._kin is None:
+            return
+        ok, y = self._fix_apply(m)
         if ok:
             self._used.add("position_fix")
             self._last_innov = (float(y[0]), float(y[1]), math.nan)
         else:
             self._n_rejected += 1
+        svn, sve = float(ev.sigma_vn_mps), float(ev.sigma_ve_mps)
+        if (math.isfinite(ev.vel_n_mps) and math.isfinite(ev.vel_e_mps) and math.isfinite(svn) and math.isfinite(sve)
+                and svn > 0 and sve > 0):  # the producer's velocity: its own measurement, its own gate
+            mv = HorizontalVelocityMeasurement(ev.t_s, "velocity_fix", (float(ev.vel_n_mps), float(ev.vel_e_mps)),
+                                               svn, sve, self.config.position_fix_gate_chi2,
+                                               self.config.position_fix_position_only)
+            if self._fix_apply(mv)[0]:
+                self._used.add("position_fix")
+            else:
+                self._n_rejected += 1
+
+    def _fix_apply(self, m) -> tuple[bool, np.ndarray]:
+        if self.mode == "ins":
+            return self._ins_apply(m)
+        ok, y, _nis = self._kin_apply(m, record=True)
+        return ok, y

@@ -27,6 +27,10 @@ _H_POS, _H_NE, _H_VEL, _H_ATT = _selection(3, 0), _selection(2, 0), _selection(3
 _POSITION_ROWS = np.zeros(15, dtype=bool)
 _POSITION_ROWS[0:3] = True
 _POSITION_ROWS.flags.writeable = False
+_VELOCITY_ROWS = np.zeros(15, dtype=bool)
+_VELOCITY_ROWS[3:6] = True
+_VELOCITY_ROWS.flags.writeable = False
+_H_VNE = _selection(2, 3)
 _H_DOWN = np.zeros((1, 15))
 _H_DOWN[0, 2] = 1.0
 _H_DOWN.flags.writeable = False
@@ -151,6 +155,44 @@ class HorizontalPositionMeasurement(Measurement):
     def H_kin(self, delay_s):
         H = np.zeros((2, 6))
         H[:, 0:2] = np.eye(2)
+        return H
+
+
+@dataclass(frozen=True)
+class HorizontalVelocityMeasurement(Measurement):
+    """The horizontal velocity a non-GNSS producer sends with its PositionFix ("velocity_fix": the sequential gravity
+    filter's estimate of the navigator's velocity, companion.gravity.sequential_stage), at the fix's epoch."""
+
+    z_ne_mps: tuple[float, float] = (0.0, 0.0)
+    sigma_n_mps: float = 1.0
+    sigma_e_mps: float = 1.0
+    gate_chi2: float = CHI2_2DOF_999
+    # True: it corrects the INS velocity only (NavigatorConfig.position_fix_position_only: each part of a fix
+    # corrects the states it measures)
+    velocity_only: bool = False
+    delay_s = 0.0
+
+    def gain_rows_ins(self) -> np.ndarray | None:
+        return _VELOCITY_ROWS if self.velocity_only else None
+
+    def z(self):
+        return np.asarray(self.z_ne_mps, dtype=float)
+
+    def R(self):
+        return np.diag([self.sigma_n_mps**2, self.sigma_e_mps**2])
+
+    def h_ins(self, s: InsView):
+        return s.vel_ned_mps[:2]
+
+    def H_ins(self):
+        return _H_VNE
+
+    def h_kin(self, x, delay_s):
+        return x[3:5]
+
+    def H_kin(self, delay_s):
+        H = np.zeros((2, 6))
+        H[:, 3:5] = np.eye(2)
         return H
 
 

@@ -88,8 +88,8 @@ class FusedState(Event):
 class MeasurementUpdate(Event):
     """One measurement offered to a Kalman filter: its innovation, normalised innovation squared and verdict.
 
-    ``kind``: "gnss_pos", "gnss_vel", "predictor", "attitude", "altitude", "position_fix", "zero_velocity",
-    "rotor_drag" (companion.nav.measurements). ``filter``: "ins" or "kinematic".
+    ``kind``: "gnss_pos", "gnss_vel", "predictor", "attitude", "altitude", "position_fix", "velocity_fix" (the
+    velocity a PositionFix may carry), "zero_velocity", "rotor_drag" (companion.nav.measurements). ``filter``: "ins" or "kinematic".
     """
 
     kind: str

@@ -38,11 +38,12 @@ def _map() -> LocalGravityMap:
 MAP = _map()
 
 
-def _state(t, ne, vel, sigma_m, gnss_age_s, measurement="none", yaw=None):
+def _state(t, ne, vel, sigma_m, gnss_age_s, measurement="none", yaw=None, sigma_v_mps=None):
     lat, lon, alt = FRAME.geodetic_tuple(ne[0], ne[1], 0.0)
     var = sigma_m**2 / 2.0
     yaw = math.atan2(vel[1], vel[0]) if yaw is None else yaw
-    return FusedState(t, lat, lon, alt, ne[0], ne[1], 0.0, vel[0], vel[1], 0.0, 0.0, 0.0, yaw, (var, var, 1.0),
+    cov = (var, var, 1.0) if sigma_v_mps is None else (var, var, 1.0, sigma_v_mps**2, sigma_v_mps**2, 1.0)
+    return FusedState(t, lat, lon, alt, ne[0], ne[1], 0.0, vel[0], vel[1], 0.0, 0.0, 0.0, yaw, cov,
                       sigma_m, 1.0, "ins", measurement, (math.nan,) * 3, 0, gnss_age_s)
 
 
@@ -59,9 +60,10 @@ def test_channel_fix_makes_the_navigator_posterior_the_filters():
     assert channel_fix(0.0, 100.0, 0.0, 100.0, 0.0) is None
 
 
-def _run(stage, n_s, cut_s, drift_mps=(0.3, -0.2), jump_at=None, jump=(0.0, 0.0), readings=True):
+def _run(stage, n_s, cut_s, drift_mps=(0.3, -0.2), jump_at=None, jump=(0.0, 0.0), readings=True, vel_error=False):
     """A ship at 8 m/s heading 60 deg; the navigator is the truth until cut_s, then drifts at drift_mps; its
-    sigma grows at 5 m/s after the cut. FusedState at 10 Hz, readings (the map at the truth) at 1 Hz."""
+    sigma grows at 5 m/s after the cut. FusedState at 10 Hz, readings (the map at the truth) at 1 Hz. vel_error:
+    the navigator's velocity is off by the drift too (else it reports the true velocity), with a 1 m/s sigma."""
     v = 8.0 * np.array([math.cos(math.radians(60)), math.sin(math.radians(60))])
     out = [stage.process(FrameInfo(0.0, *REF))]
     offset = np.zeros(2)
@@ -77,7 +79,9 @@ def _run(stage, n_s, cut_s, drift_mps=(0.3, -0.2), jump_at=None, jump=(0.0, 0.0)
             nav = nav + np.asarray(jump)
             meas, jumped = "position_fix", True
         sigma = 2.0 if t < cut_s else 2.0 + 5.0 * after
-        out.append(stage.process(_state(t, nav, v, sigma, 0.0 if t < cut_s else after, meas)))
+        v_nav = v + (np.asarray(drift_mps) if vel_error and t >= cut_s else 0.0)
+        out.append(stage.process(_state(t, nav, v_nav, sigma, 0.0 if t < cut_s else after, meas,
+                                        sigma_v_mps=(0.05 if t < cut_s else 1.0) if vel_error else None)))
         if readings and k % 10 == 0:
             g = float(MAP.interp_ne(*truth))
             out.append(stage.process(GravityReading(t, g, 0.5)))
@@ -157,11 +161,34 @@ def test_gravity_settings_reach_the_live_stage(tmp_path):
     tasman = require(SHARED / "data" / "gravity" / "tasman_grav_west_145E-160E.nc")
     base = {"link.connect": "udpin:127.0.0.1:14550", "gravity.map": str(tasman), "gravity.matcher": "sequential"}
     cfg = load_config(None, {**base, "gravity.seq_particles": 400, "gravity.seq_gyro_bias_degph": 0.5,
-                             "gravity.seq_min_gain": 0.3})
+                             "gravity.seq_min_gain": 0.3, "gravity.seq_velocity_fixes": True})
     stage = live_gravity_stage(cfg.gravity)
     assert isinstance(stage, SequentialGravityStage) and stage.view.geographic
     assert stage.cfg.n_particles == 400 and stage.cfg.ins.gyro_bias_degph == 0.5 and stage.min_gain == 0.3
+    assert stage.velocity_fixes and not live_gravity_stage(load_config(None, base).gravity).velocity_fixes
     with pytest.raises(ConfigError, match="seq_particles"):
         load_config(None, {**base, "gravity.seq_particles": 5})
     with pytest.raises(ConfigError, match="seq_min_gain"):
         load_config(None, {**base, "gravity.seq_min_gain": 1.5})
+
+
+def test_velocity_fixes_carry_the_filters_estimate_of_the_navigators_velocity():
+    """The navigator's velocity is 0.36 m/s off after the cut (its position drifts with it): with velocity_fixes the
+    fixes carry a velocity nearer the truth than the navigator's, with a sigma that covers its error; without, none."""
+    v_true = 8.0 * np.array([math.cos(math.radians(60)), math.sin(math.radians(60))])
+    stage = SequentialGravityStage(MAP, SeqGravConfig(n_particles=300), Placement(), sigma_mgal=0.5, seed=1,
+                                   velocity_fixes=True)
+    out, _ = _run(stage, 1500.0, 300.0, vel_error=True)
+    fixes = [o for o in out if isinstance(o, PositionFix) and math.isfinite(o.vel_n_mps)]
+    late = [f for f in fixes if f.t_s > 900.0]
+    assert len(late) > 100
+    err = np.array([[f.vel_n_mps - v_true[0], f.vel_e_mps - v_true[1]] for f in late])
+    sig = np.array([[f.sigma_vn_mps, f.sigma_ve_mps] for f in late])
+    e_h = np.hypot(err[:, 0], err[:, 1])
+    assert e_h[-100:].mean() < 0.5 * math.hypot(0.3, -0.2) and e_h[-100:].mean() < e_h[:100].mean()
+    assert np.mean(np.abs(err) <= 2.0 * sig) >= 0.9
+
+    plain = SequentialGravityStage(MAP, SeqGravConfig(n_particles=300), Placement(), sigma_mgal=0.5, seed=1)
+    out2, _ = _run(plain, 400.0, 300.0, vel_error=True)
+    fixes2 = [o for o in out2 if isinstance(o, PositionFix)]
+    assert fixes2 and all(math.isnan(f.vel_n_mps) and math.isnan(f.sigma_vn_mps) for f in fixes2)

@@ -10,6 +10,7 @@ from companion.nav.measurements import (
     AttitudeMeasurement,
     DragMeasurement,
     HorizontalPositionMeasurement,
+    HorizontalVelocityMeasurement,
     InsView,
     PositionMeasurement,
     VelocityMeasurement,
@@ -26,6 +27,7 @@ FAMILY = {
     "attitude": AttitudeMeasurement(1.0, "attitude", c_meas=C_MEAS, var_rad2=(9e-4, 9e-4, 0.01)),
     "altitude": AltitudeMeasurement(1.0, "altitude", z_down_m=-10.0, sigma_m=3.0),
     "position_fix": HorizontalPositionMeasurement(1.0, "position_fix", (5.0, -4.0), 20.0, 30.0),
+    "velocity_fix": HorizontalVelocityMeasurement(1.0, "velocity_fix", (2.0, -1.0), 0.4, 0.6),
     "zero_velocity": VelocityMeasurement(1.0, "zero_velocity", (0.0, 0.0, 0.0), 0.3),
     "rotor_drag": DragMeasurement(1.0, "rotor_drag", (-0.6, 0.2), 0.3, (2.0, -1.0), (0.05, -0.02), (0.04, 0.01, 0.06)),
 }

@@ -115,3 +115,35 @@ def test_position_only_fixes_leave_the_velocity_to_the_ins():
     # the velocity is the free INS's (but for the position's own effect on gravity and the transport rate)
     assert np.abs(vel_err(only) - free).max() < 0.01
     assert full.max() > free.max() + 0.5  # the full update moved the velocity (here, away from the truth)
+
+
+def test_a_fixs_velocity_corrects_the_velocity_only():
+    """A PositionFix carrying a velocity (the sequential gravity filter's): with position_fix_position_only each part
+    corrects the states it measures. True velocities at 0.2 m/s keep the velocity near the truth where the free INS
+    drifts; an empty velocity (NaN) is not fused."""
+    from companion.nav.navigator import NavigatorConfig
+
+    noise = SimNoise(accel_bias_mps2=(0.08, -0.06, 0.05), gyro_bias_radps=(0.004, -0.003, 0.002))
+    sim = simulate_circle_flight(150.0, np.random.default_rng(3), noise=noise)
+    t0 = sim.events[0].t_s
+    events = [e for e in sim.events if not (isinstance(e, GnssFix) and e.t_s > t0 + CUT_S)]
+    vt_of = [np.gradient(sim.truth_pos_ned_m[:, i], sim.truth_t_s) for i in range(2)]
+    rng = np.random.default_rng(5)
+    pos_fixes = _fixes(sim, np.random.default_rng(7), 50.0, 5.0, t0 + 60.0)
+    vel_fixes = [PositionFix(f.t_s, f.lat_deg, f.lon_deg, f.sigma_n_m, f.sigma_e_m, "test",
+                             *(float(np.interp(f.t_s, sim.truth_t_s, vt_of[i])) + rng.normal(0, 0.2) for i in range(2)),
+                             0.2, 0.2) for f in pos_fixes]
+
+    def vel_err(out):
+        fused = [o for o in out if isinstance(o, FusedState) and o.t_s >= t0 + 90.0]
+        t = np.array([o.t_s for o in fused])
+        v = np.array([(o.vel_n_mps, o.vel_e_mps) for o in fused])
+        return np.hypot(*(v - np.stack([np.interp(t, sim.truth_t_s, vt_of[i]) for i in range(2)], 1)).T)
+
+    cfg = NavigatorConfig(position_fix_position_only=True)
+    pos_only = run_navigator(events + pos_fixes, cfg)
+    with_vel = run_navigator(events + vel_fixes, cfg)
+    ups = [o for o in with_vel if isinstance(o, MeasurementUpdate) and o.kind == "velocity_fix"]
+    assert len(ups) == len(vel_fixes) and sum(u.accepted for u in ups) > 0.9 * len(ups)
+    assert not any(isinstance(o, MeasurementUpdate) and o.kind == "velocity_fix" for o in pos_only)
+    assert vel_err(with_vel).mean() < 0.5 and vel_err(pos_only).mean() > 2 * vel_err(with_vel).mean()
