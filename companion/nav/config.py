@@ -88,6 +88,14 @@ class NavigatorConfig:
     --offsets 4) it improved the Erle PXF log (4 s 1.34 -> 1.19 x the best baseline, 8 s 1.29 -> 1.25) but
     held-out log171 moved 6.09 -> 6.14 m at 15 s and 19.53 -> 19.57 m at 30 s (pooled 15 s 6.83 -> 6.85 m):
     not a clear gain off the log that motivated it.
+    ``att_fuse_interval_s``: every autopilot attitude is fused (0), each as an independent sample, though it is a
+    filter's output whose error persists from sample to sample. Fusing at most every 0.5 / 1 / 2 s
+    (replay.gap_filling --offsets 4 --no-stream-gaps --set att_fuse_interval_s=X): pooled 8 s 3.23 -> 3.16 / 3.09 /
+    3.09 m, 30 s 26.60 -> 23.53 / 21.89 / 21.00 m, held-out log171 30 s 19.53 -> 17.60 / 17.15 / 14.62 m, Erle PXF
+    8 s 2.90 -> 1.95 / 1.95 / 2.02 m; but Erle PXF 4 s 3.26 -> 2.84 / 3.53 / 3.07 m, its one 30 s blockage 4.71 ->
+    4.61 / 4.73 / 10.88 m, log171 1 s 0.33 -> 0.35 / 0.36 / 0.38 m, ac313 15 s 7.27 -> 7.35 / 7.34 / 7.38 m. Not
+    better at every log and length, so left at 0; the interval an autopilot needs depends on how long its error
+    persists, which is not measured online.
     ``rotor_drag`` (companion.nav.drag) and ``motion_prior`` (companion.nav.motion_prior) are described in
     their modules: the multicopter's horizontal accelerometers as an air-velocity measurement during a
     blockage, and hold / constant velocity mixed into the output by what they were worth on this flight.

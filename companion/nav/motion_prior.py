@@ -33,6 +33,14 @@ output in a blockage is that extrapolation, plus the predictor's points), not of
 output owes much to its aids (autopilot attitude, rotor drag, the predictor) that the free-INS record leaves out:
 with the selection in INS mode too, the 8 s blockage on the three 50 Hz logs went 3.23 -> 4.05 m (held-out log171
 2.71 -> 3.50 m) in replay.gap_filling --offsets 4, so there the product with the claimed variance stays.
+In INS mode the product costs at short ages and pays from 8 s on: without it (replay.gap_filling --offsets 4
+--set motion_prior=false) the pooled 4 s blockage goes 1.68 -> 1.42 m (Erle PXF 3.26 -> 2.50, ac313 1.54 -> 1.36,
+log171 0.87 -> 0.85) but 8 s 3.23 -> 3.55, 15 s 6.83 -> 8.82, 30 s 26.60 -> 37.26 m (Erle PXF 8 s 2.90 -> 6.42). In
+the 4 s blockages of ac313 and Erle PXF the prior's error exceeds its variance (hold and CV there do worse than on the
+fix pairs it learnt from). A prequential check of the prior (its variance inflated per lag by the mean NIS of its
+predictions of each new fix, made before that fix was learnt) found it consistent on those pairs and did not help
+(pooled 4 s 1.68 -> 1.66 m, 8 s 3.23 -> 3.30 m, Erle PXF 8 s 2.90 -> 3.88 m); not kept.
+
 On by default. On the kinematic-mode tlog (GNSS at 1 Hz, --offsets 4) the ratio full filter / best baseline went
 1.14 / 1.31 / 1.17 / 1.01 / 1.00 -> 1.04 / 1.23 / 1.14 / 1.03 / 1.00 at 1 / 4 / 8 / 15 / 30 s; the 4 and 8 s rows are
 dominated by one blockage in which the vehicle leaves a waypoint hover (hold 3.2 m, the filter 4.1 m at 4 s). On
