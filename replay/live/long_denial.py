@@ -51,6 +51,12 @@ NAV_SETTINGS = {
 }
 
 
+def _velocity_note(a) -> str:
+    """Title suffix when the sequential filter's fixes carry its velocity estimate (gravity.seq_velocity_fixes)."""
+    on = any(kv.replace(" ", "").lower() == "gravity.seq_velocity_fixes=true" for kv in a.set)
+    return ", with velocity fixes" if on else ""
+
+
 def summary_lines(text: str) -> list[str]:
     """The companion's summary with each wrapped entry on one line: it wraps a long entry to the terminal's width
     (80 columns in a pipe), its continuation lines indented under the text (companion.cli._summary_line)."""
@@ -257,7 +263,7 @@ def main(argv=None) -> int:
     text = "\n".join([
         f"# Gravity-aided {'voyage' if a.cruise_speed < 30 else 'flight'} through a long GNSS denial, live "
         f"(`companion sim` + `companion run`), {a.cruise_speed:g} m/s, {a.sensors} sensors"
-        + (f", {a.matcher} filter" if a.matcher != "viterbi" else ""),
+        + (f", {a.matcher} filter" if a.matcher != "viterbi" else "") + _velocity_note(a),
         "",
         f"`{cmd}`",
         "",
@@ -335,7 +341,8 @@ def main(argv=None) -> int:
     # the span drawn, from the data: the planned flight is longer when the injector stopped early
     planned = "" if span_h >= a.hours - 0.05 else f" (of a {a.hours:g} h flight)"
     ax.set_title(f"companion run, live GPS_INPUT over {span_h:.1f} h{planned}: survey at {a.cruise_speed:g} m/s, "
-                 f"{a.sensors} sensors" + (f", {a.matcher}" if a.matcher != "viterbi" else ""), fontsize=10)
+                 f"{a.sensors} sensors" + (f", {a.matcher}" if a.matcher != "viterbi" else "") + _velocity_note(a),
+                 fontsize=10)
     fig.tight_layout()
     fig.savefig(RESULTS / f"gravity_live_{a.name}_error.png", dpi=110)
     plt.close(fig)
