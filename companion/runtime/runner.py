@@ -61,6 +61,18 @@ MAX_DRAIN = 100_000
 LATENCY_KEEP = 1 << 20  # latency samples kept per trigger (8 MiB); beyond, thinned by half
 
 
+def run_loop(main: Any) -> Any:
+    """``asyncio.run(main)`` on uvloop's event loop when uvloop is installed (a dependency on Linux and macOS), else on
+    asyncio's own. The live process wakes up for every message the link delivers; uvloop does the loop's share of each
+    wake-up (self-pipe, ready queue, futures' call-backs) in C."""
+    try:
+        import uvloop
+    except ImportError:
+        return asyncio.run(main)
+    with asyncio.Runner(loop_factory=uvloop.new_event_loop) as runner:
+        return runner.run(main)
+
+
 def percentile_ms(values, q: float) -> float:
     import numpy as np
 
