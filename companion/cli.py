@@ -332,9 +332,10 @@ def cmd_run(args) -> int:
     t0 = wall_time_s()
     stopped_by = None
     try:
+        from companion.runtime.runner import run_loop
         from companion.runtime_status import run_with_status
 
-        stopped_by = asyncio.run(run_with_status(runtime, config.duration_s or None, args.status_every))
+        stopped_by = run_loop(run_with_status(runtime, config.duration_s or None, args.status_every))
     finally:
         runtime.finalize_info()
         recorder.add_metadata("runtime", runtime.metadata())

@@ -34,6 +34,9 @@ class LinkClosed(Exception):
 
 #: one UDP read takes the datagrams waiting up to this many bytes
 UDP_DRAIN_BYTES = 1 << 18
+#: one TCP read takes up to this many bytes
+TCP_READ_BYTES = 1 << 16
+_TIMEVAL = struct.Struct("@ll")  # SO_RCVTIMEO: struct timeval
 _SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)  # Linux: a struct timespec (CLOCK_REALTIME) per datagram
 _TIMESPEC = struct.Struct("@qq")
 
@@ -167,6 +170,7 @@ class TcpTransport(Transport):
         self.listen_sock = None
         self.sock = None
         self._arrivals = ArrivalTracker()
+        self._rcvtimeo_s: float | None = None  # the socket's SO_RCVTIMEO
         if listen:
             self.listen_sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
             self.listen_sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -182,6 +186,7 @@ class TcpTransport(Transport):
         s.settimeout(None)
         s.setblocking(True)
         self.sock = s
+        self._rcvtimeo_s = None
 
     def recv(self, timeout_s: float) -> bytes:
         if self.sock is None:
@@ -190,16 +195,22 @@ class TcpTransport(Transport):
                 s, _ = self.listen_sock.accept()
                 self._setup(s)
             return b""
-        r, _, _ = select.select([self.sock], [], [], timeout_s)
-        if not r:
-            return b""
+        # one system call a read: the read itself waits (SO_RCVTIMEO; EAGAIN when nothing came), no select before it
+        if timeout_s > 0 and timeout_s != self._rcvtimeo_s:
+            sec = int(timeout_s)
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, _TIMEVAL.pack(sec, min(999_999, max(1, round((timeout_s - sec) * 1e6)))))
+            self._rcvtimeo_s = timeout_s
         try:
-            data, anc, _flags, _addr = self.sock.recvmsg(65536, 64)
+            data, anc, _flags, _addr = self.sock.recvmsg(TCP_READ_BYTES, 64, 0 if timeout_s > 0 else socket.MSG_DONTWAIT)
+        except (BlockingIOError, InterruptedError):
+            return b""
         except OSError as err:
             raise LinkClosed(f"connection error ({err.strerror or err})") from None
         if not data:
             raise LinkClosed("connection closed by the peer")
-        self.last_pending = _queued_bytes(self.sock)
+        # a read that did not fill the buffer emptied the kernel's queue (Linux's tcp_recvmsg returns short only then):
+        # what is queued now came in since and the next read takes it; FIONREAD only after a full read
+        self.last_pending = _queued_bytes(self.sock) if len(data) == TCP_READ_BYTES else 0
         tracked = self._arrivals.observe(len(data), self.last_pending)
         stamped = _stamp_age_s(anc)
         self.last_age_s = tracked if stamped is None else stamped

@@ -31,7 +31,7 @@ import sys
 import threading
 import time
 from array import array
-from collections import defaultdict
+from collections import defaultdict, deque
 from dataclasses import replace
 from typing import Any
 
@@ -59,6 +59,18 @@ YIELD_S = 0.02
 #: batches taken from the queue at once when behind
 MAX_DRAIN = 100_000
 LATENCY_KEEP = 1 << 20  # latency samples kept per trigger (8 MiB); beyond, thinned by half
+
+
+def run_loop(main: Any) -> Any:
+    """``asyncio.run(main)`` on uvloop's event loop when uvloop is installed (a dependency on Linux and macOS), else on
+    asyncio's own. The live process wakes up for every message the link delivers; uvloop does the loop's share of each
+    wake-up (self-pipe, ready queue, futures' call-backs) in C."""
+    try:
+        import uvloop
+    except ImportError:
+        return asyncio.run(main)
+    with asyncio.Runner(loop_factory=uvloop.new_event_loop) as runner:
+        return runner.run(main)
 
 
 def percentile_ms(values, q: float) -> float:
@@ -103,7 +115,7 @@ class Runtime:
         self.lag_max_s = 0.0  # longest an input event waited between its arrival and its processing (wall s)
         self.events_late = 0  # input events that waited longer than inject.max_lag_s
         self.events_in = 0
-        self._queue: asyncio.Queue | None = None
+        self._queue: Inbox | None = None
         self._stop_requested = False
         self._rx: tuple[float, str] | None = None
         self._last_batch_wall = time.monotonic()
@@ -143,7 +155,7 @@ class Runtime:
     async def run(self, duration_s: float | None = None) -> str | None:
         """Run until SIGTERM/SIGINT or ``duration_s``; returns what stopped it."""
         loop = asyncio.get_running_loop()
-        queue: asyncio.Queue = asyncio.Queue()
+        queue = Inbox(loop)
         self._queue = queue
         reasons: list[str] = []
         # the link thread and the loop share the GIL: hand it over within 1 ms, not CPython's default 5 ms
@@ -228,7 +240,7 @@ class Runtime:
         self.stopped_by = reasons[0] if reasons else None
         return self.stopped_by
 
-    def _catch_up(self, first: Batch, queue: asyncio.Queue) -> tuple[list[tuple[Event, float, str]], list]:
+    def _catch_up(self, first: Batch, queue: Inbox) -> tuple[list[tuple[Event, float, str]], list]:
         """Behind the link: every queued batch at once, IMU samples coalesced; returns the events with their
         arrival times and triggers, and the link statuses (and a stop) that were queued between them."""
         self._behind_at = time.perf_counter()
@@ -320,6 +332,38 @@ class Runtime:
                 f"p99 {percentile_ms(vals, 99):.2f} ms over {len(vals)}"
             )
         return lines
+
+
+class Inbox:
+    """What the link delivers, for the one task that takes it: asyncio.Queue's ``put_nowait``, ``get``, ``get_nowait`` and
+    ``empty`` (unbounded, FIFO) without its per-call loop check and waiter bookkeeping (a wake-up a message)."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
+        self._loop = loop
+        self._items: deque = deque()
+        self._waiter: asyncio.Future | None = None
+
+    def put_nowait(self, item: Any) -> None:
+        self._items.append(item)
+        waiter = self._waiter
+        if waiter is not None:
+            self._waiter = None
+            if not waiter.done():  # (a cancelled get)
+                waiter.set_result(None)
+
+    async def get(self) -> Any:
+        while not self._items:
+            self._waiter = self._loop.create_future()
+            await self._waiter
+        return self._items.popleft()
+
+    def get_nowait(self) -> Any:
+        if not self._items:
+            raise asyncio.QueueEmpty
+        return self._items.popleft()
+
+    def empty(self) -> bool:
+        return not self._items
 
 
 class DeferredSink:

@@ -485,3 +485,19 @@ def test_any_field_at_any_value_is_dropped_or_clamped_never_raised():
     assert inj.sent == len(wire.msgs) > 100, inj.dropped
     assert all(0 <= m.time_week <= 65535 and m.time_usec >= 0 for m in wire.msgs)
     assert sum(inj.dropped.values()) > 100
+
+
+def test_fast_replace_builds_what_dataclasses_replace_builds():
+    from companion.inject.gps_input import _carry, _replace, _replace_sent
+
+    s = state()
+    changed = dict(t_s=11.0, lat_deg=-35.0, north_m=1.5, age_since_fix_s=0.3)
+    assert _replace(s, **changed) == replace(s, **changed)
+    carried = _carry(s, 10.1)
+    assert carried.t_s == 10.1 and carried.north_m == pytest.approx(0.3) and carried.east_m == pytest.approx(-0.4)
+    assert replace(carried, t_s=s.t_s) != s  # (it moved)
+    rec = Injector(InjectConfig(mode="shadow", activate="always"))._record(s, False)
+    assert not rec.sent
+    assert _replace_sent(rec) == replace(rec, sent=True)
+    with pytest.raises(TypeError):
+        _replace(s, no_such_field=1.0)

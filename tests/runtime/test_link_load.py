@@ -11,7 +11,7 @@ import time
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from companion.mavlink.shed import ImuShedder
-from companion.mavlink.transport import ArrivalTracker, TcpTransport, UdpTransport
+from companion.mavlink.transport import TCP_READ_BYTES, ArrivalTracker, TcpTransport, UdpTransport, _queued_bytes
 from tests.conftest import free_port
 
 
@@ -124,6 +124,31 @@ def test_tcp_read_reports_the_kernel_age_of_its_bytes():
         waited = time.monotonic() - t_first
         assert data == b"x" * 1000 and srv.last_pending == 0
         assert 0.3 <= srv.last_age_s <= waited + 0.01
+    finally:
+        cli.close()
+        srv.close()
+
+
+def test_tcp_read_waits_out_its_timeout_and_a_full_read_reports_what_is_left():
+    """The read waits up to its time-out (SO_RCVTIMEO, no select), 0 does not wait; a read that fills the buffer says how
+    many bytes the kernel still holds (the reader's "behind" signal), one that empties the queue says 0."""
+    port = free_port()
+    srv = TcpTransport("127.0.0.1", port, listen=True)
+    cli = socket.create_connection(("127.0.0.1", port))
+    try:
+        end = time.monotonic() + 60
+        while srv.sock is None and time.monotonic() < end:
+            srv.recv(0.1)
+        t0 = time.monotonic()
+        assert srv.recv(0.2) == b""
+        assert time.monotonic() - t0 >= 0.19
+        assert srv.recv(0.0) == b""
+        extra = 5000
+        cli.sendall(b"y" * (TCP_READ_BYTES + extra))
+        while _queued_bytes(srv.sock) < TCP_READ_BYTES + extra and time.monotonic() < end:
+            time.sleep(0.01)
+        assert srv.recv(5.0) == b"y" * TCP_READ_BYTES and srv.last_pending == extra
+        assert srv.recv(5.0) == b"y" * extra and srv.last_pending == 0
     finally:
         cli.close()
         srv.close()

@@ -216,3 +216,44 @@ def test_deferred_imports_are_warmed_off_the_loop():
             "r.warm_deferred_imports(); assert all(m in sys.modules for m in r.DEFERRED_IMPORTS)")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
+
+
+def test_inbox_is_a_fifo_queue_for_one_task():
+    from companion.runtime.runner import Inbox
+
+    async def main():
+        box = Inbox(asyncio.get_running_loop())
+        assert box.empty()
+        with pytest.raises(asyncio.QueueEmpty):
+            box.get_nowait()
+        box.put_nowait(1)
+        box.put_nowait(2)
+        assert await box.get() == 1 and box.get_nowait() == 2 and box.empty()
+        waiting = asyncio.ensure_future(box.get())
+        await asyncio.sleep(0)
+        asyncio.get_running_loop().call_later(0.01, box.put_nowait, 3)
+        assert await asyncio.wait_for(waiting, 60) == 3
+        cancelled = asyncio.ensure_future(box.get())  # a get cancelled while waiting loses nothing
+        await asyncio.sleep(0)
+        cancelled.cancel()
+        box.put_nowait(4)
+        assert await box.get() == 4 and box.empty()
+        await asyncio.gather(cancelled, return_exceptions=True)
+        return cancelled.cancelled()
+
+    assert asyncio.run(main())
+
+
+def test_run_loop_runs_on_uvloop_when_installed():
+    from companion.runtime.runner import run_loop
+
+    async def main():
+        await asyncio.sleep(0)
+        return type(asyncio.get_running_loop()).__module__
+
+    try:
+        import uvloop  # noqa: F401
+    except ImportError:
+        assert run_loop(main()).startswith("asyncio")
+    else:
+        assert run_loop(main()).startswith("uvloop")
