@@ -109,14 +109,20 @@ def test_udp_read_takes_every_datagram_waiting_with_its_kernel_age():
         rx.close()
 
 
-def test_tcp_read_reports_the_kernel_age_of_its_bytes():
+def _accepted_tcp_pair():
+    """A listening TcpTransport and a client connected to it, once the transport has accepted (waits up to 60 s)."""
     port = free_port()
     srv = TcpTransport("127.0.0.1", port, listen=True)
     cli = socket.create_connection(("127.0.0.1", port))
+    end = time.monotonic() + 60
+    while srv.sock is None and time.monotonic() < end:
+        srv.recv(0.1)
+    return srv, cli
+
+
+def test_tcp_read_reports_the_kernel_age_of_its_bytes():
+    srv, cli = _accepted_tcp_pair()
     try:
-        end = time.monotonic() + 60
-        while srv.sock is None and time.monotonic() < end:
-            srv.recv(0.1)
         t_first = time.monotonic()
         cli.sendall(b"x" * 1000)
         time.sleep(0.3)
@@ -132,13 +138,8 @@ def test_tcp_read_reports_the_kernel_age_of_its_bytes():
 def test_tcp_read_waits_out_its_timeout_and_a_full_read_reports_what_is_left():
     """The read waits up to its time-out (SO_RCVTIMEO, no select), 0 does not wait; a read that fills the buffer says how
     many bytes the kernel still holds (the reader's "behind" signal), one that empties the queue says 0."""
-    port = free_port()
-    srv = TcpTransport("127.0.0.1", port, listen=True)
-    cli = socket.create_connection(("127.0.0.1", port))
+    srv, cli = _accepted_tcp_pair()
     try:
-        end = time.monotonic() + 60
-        while srv.sock is None and time.monotonic() < end:
-            srv.recv(0.1)
         t0 = time.monotonic()
         assert srv.recv(0.2) == b""
         assert time.monotonic() - t0 >= 0.19
