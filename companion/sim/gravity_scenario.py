@@ -86,6 +86,14 @@ class InsErrorModel:
     init_vel_sigma_mps: float = 0.0
     init_tilt_sigma_rad: float = 2e-5
     init_heading_sigma_rad: float = 1e-4
+    # > 0: the INS's attitude is held by an attitude reference (an AHRS that the companion's navigator fuses, as on
+    # a vehicle with a tactical-grade IMU): psi is then that reference's error, first-order Gauss-Markov with this
+    # time constant and these stationary sigmas (exact discretisation, stationary start), not the integral of the
+    # gyro errors, and the Schuler feedback is cut (the reference, not the INS position, sets the vertical); the
+    # gyro terms and init_tilt/heading are unused. Mirrors companion.gravity.sequential_backends.error_dynamics.
+    attitude_tau_s: float = 0.0
+    attitude_tilt_sigma_rad: float = 0.0
+    attitude_heading_sigma_rad: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -102,7 +110,8 @@ def simulate_ins(traj: ScenarioTrack, lat0_deg: float, model: InsErrorModel, rng
     """Propagate the psi-angle error model (Titterton & Weston) along the true trajectory.
 
     dr' = dv;  dv' = f x psi + bias_a^n + noise - (g/R) dr  (Schuler);  psi' = -w_in x psi - bias_g^n - noise,
-    with w_in = earth rate + transport rate at the true latitude; body biases rotate with heading.
+    with w_in = earth rate + transport rate at the true latitude; body biases rotate with heading. With
+    model.attitude_tau_s > 0, psi is the attitude reference's Gauss-Markov error and the Schuler term is cut.
     """
     n = len(traj)
     R = WGS84_A_M
@@ -121,6 +130,13 @@ def simulate_ins(traj: ScenarioTrack, lat0_deg: float, model: InsErrorModel, rng
     vn, ve = rng.normal(0.0, model.init_vel_sigma_mps, 2)
     pn, pe = rng.normal(0.0, model.init_tilt_sigma_rad, 2)
     pd = rng.normal(0.0, model.init_heading_sigma_rad)
+    held = model.attitude_tau_s > 0
+    if held:  # drawn after the free-INS draws, so a free INS's runs are unchanged by this mode
+        att_sig = np.array([model.attitude_tilt_sigma_rad, model.attitude_tilt_sigma_rad, model.attitude_heading_sigma_rad])
+        pn, pe, pd = rng.normal(0.0, 1.0, 3) * att_sig  # stationary start
+        a_gm = np.exp(-dt / model.attitude_tau_s)
+        att_w = rng.normal(0.0, 1.0, (n, 3)) * att_sig * np.sqrt(1.0 - a_gm**2)[:, None]
+    schuler = 0.0 if held else g / R
     lat = np.radians(lat0_deg) + traj.pos_ne_m[:, 0] / R
     ch, sh = np.cos(traj.heading_rad), np.sin(traj.heading_rad)
     out_r = np.empty((n, 2))
@@ -146,15 +162,18 @@ def simulate_ins(traj: ScenarioTrack, lat0_deg: float, model: InsErrorModel, rng
             dpe = -(wz * pn - wx * pd) - ege
             dpd = -(wx * pe - wy * pn) - egd
             # dv' = f x psi + grad - (g/R) dr, f = (aN, aE, -g)
-            dvn = aE * pd + g * pe + ban - g / R * rn
-            dve = -g * pn - aN * pd + bae - g / R * re
+            dvn = aE * pd + g * pe + ban - schuler * rn
+            dve = -g * pn - aN * pd + bae - schuler * re
             vn += h * dvn
             ve += h * dve
             rn += h * vn  # semi-implicit Euler keeps the Schuler loop stable
             re += h * ve
-            pn += h * dpn
-            pe += h * dpe
-            pd += h * dpd
+            if held:
+                pn, pe, pd = a_gm[k] * np.array([pn, pe, pd]) + att_w[k]
+            else:
+                pn += h * dpn
+                pe += h * dpe
+                pd += h * dpd
         out_r[k] = rn, re
         out_v[k] = vn, ve
         out_p[k] = pn, pe, pd

@@ -1,5 +1,7 @@
 """The 2-D gravity scenario model: tracks, INS error model, gravimeter, Eotvos."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -63,6 +65,33 @@ def test_ins_drift_is_realistic():
     # paper-grade gyro (0.01 deg/h): km-level drift after hours, not metres, not hundreds of km
     drifts = [np.hypot(*simulate_ins(tr, 30.0, InsErrorModel(), np.random.default_rng(s)).pos_err_ne_m[-1]) for s in range(5)]
     assert 300 < np.median(drifts) < 20_000
+
+
+def test_ins_with_attitude_reference():
+    """attitude_tau_s > 0: psi is the reference's stationary Gauss-Markov error (its sigmas, its time constant) and
+    there is no Schuler loop, so an accelerometer bias alone grows the position error as b t^2 / 2."""
+    tr = make_trajectory(8.0, [Segment(4 * 3600.0)], dt_s=1.0, heading0_deg=30.0)
+    tau, tilt, head = 60.0, 3e-4, 9e-4
+    held = InsErrorModel(gyro_bias_degph=0.01, accel_bias_ug=0, gyro_arw_deg_rthr=0.001, accel_vrw_ug_rthz=0,
+                         attitude_tau_s=tau, attitude_tilt_sigma_rad=tilt, attitude_heading_sigma_rad=head)
+    psi = np.concatenate([simulate_ins(tr, 30.0, held, np.random.default_rng(s)).psi_ned_rad for s in range(4)])
+    np.testing.assert_allclose(psi.std(axis=0), [tilt, tilt, head], rtol=0.12)  # the gyro errors play no part
+    one = psi[: tr.t_s.size]
+    lag1 = [np.corrcoef(one[:-1, i], one[1:, i])[0, 1] for i in range(3)]
+    np.testing.assert_allclose(lag1, np.exp(-1.0 / tau), atol=0.01)
+    bias_only = InsErrorModel(gyro_bias_degph=0, accel_bias_ug=100, gyro_arw_deg_rthr=0, accel_vrw_ug_rthz=0,
+                              attitude_tau_s=tau, attitude_tilt_sigma_rad=0.0, attitude_heading_sigma_rad=0.0)
+    out = simulate_ins(tr, 30.0, bias_only, np.random.default_rng(1))
+    b = np.hypot(*out.accel_bias_mps2[:2])
+    t_end = tr.t_s[-1]
+    assert np.hypot(*out.pos_err_ne_m[-1]) == pytest.approx(0.5 * b * t_end**2, rel=1e-3)
+    # the same bias in a free INS stays Schuler-bounded (~2 b R / g, see test_ins_drift_is_realistic): 2 % of that
+    free = simulate_ins(tr, 30.0, replace(bias_only, attitude_tau_s=0.0), np.random.default_rng(1))
+    assert np.hypot(*free.pos_err_ne_m.T).max() < 0.02 * 0.5 * b * t_end**2
+    # a free INS draws what it always drew (the attitude mode's draws come after), whatever the unused sigmas
+    np.testing.assert_array_equal(
+        simulate_ins(tr, 30.0, InsErrorModel(), np.random.default_rng(5)).pos_err_ne_m,
+        simulate_ins(tr, 30.0, replace(InsErrorModel(), attitude_tilt_sigma_rad=1.0), np.random.default_rng(5)).pos_err_ne_m)
 
 
 def test_measurements_and_eotvos_correction_consistent():
