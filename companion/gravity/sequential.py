@@ -119,16 +119,24 @@ class SeqGravConfig:
     resample_frac: float = 0.5  # resample when N_eff < resample_frac * N
     # position kernel after resampling (regularised particle filter, Musso, Oudjane & Le Gland 2001): bandwidth h as a
     # fraction of the population std; roughen_shrink first shrinks the positions towards their mean by sqrt(1 - h^2)
-    # (Liu & West 2001) so the kernel keeps the covariance (unshrunk, a cloud resampled at every reading grows by
-    # 1 + h^2 per reading along any direction the map does not observe); None: their optimal Gaussian bandwidth
-    # (4 / (N (d + 2)))^(1 / (d + 4)), 0.32 for N = 1000, d = 2. Kept at an unshrunk 0.1 on the tuning seeds: the
-    # shrunk 0.15 kernel raised the aircraft's coverage there (70.9 -> 76.8 % within 2 h_acc) but cost the ship
-    # (AK + Tasman aided / INS 0.46 -> 0.52, Tasman coverage 90 -> 82 %), and on the held-out seeds it was worse on
-    # both (aircraft 63 %, 946 m); the optimum 0.32 fails 2 of 3 zero-noise convergence draws of tests/gravity
-    roughen: float | None = 0.1
+    # (Liu & West 2001) so the kernel keeps the covariance; None: their optimal Gaussian bandwidth
+    # (4 / (N (d + 2)))^(1 / (d + 4)), 0.32 for N = 1000, d = 2. Off by default: in this filter each particle's linear
+    # states (velocity, biases) are conditioned on its own position path (Schoen 2005 eq. 23a, the path as a
+    # pseudo-measurement of Anl xl), so a jitter of the positions alone leaves particles whose velocity no longer
+    # explains their path; diversity comes instead from the position process noise below, which eq. 23 accounts for.
+    roughen: float | None = 0.0
     roughen_shrink: bool = False
     roughen_multimodal: float = 0.1  # bandwidth cap while the cloud is multimodal (bimodality above multimodal_bc)
-    pos_noise_m_rts: float = 0.05  # direct position random walk (numerical floor), m / sqrt(s)
+    # direct position random walk, m / sqrt(s): also the noise of eq. 23's pseudo-measurement, so it floors each
+    # particle's velocity variance (0.05 m / sqrt(s) left 0.02 m/s, and a cloud whose velocity spread lived only across
+    # particles: with the live ship flights' AHRS-held IMU at 8 m/s, whose north velocity error grows to 10-20 m/s
+    # unobserved, it locked 20-50 km off with a km-wide cloud). Chosen with roughen on the tuning seeds
+    # (replay.gravity.marine TUNING_SEEDS; AK + Tasman ship, the same with that IMU (--ahrs-seeds), the aircraft case):
+    # roughen 0.1 / 0.05 m/rts (the old defaults): ship aided / INS 0.46, 94.7 % within 2 h_acc; AHRS ship 0.62, 32 %;
+    # aircraft 818 m, 90.2 %. roughen 0 with 1 / 2 / 4 m/rts: ship 0.45 / 0.44 / 0.45, 96.2 / 96.1 / 97.2 %; AHRS ship
+    # 0.16 / 0.16 / 0.17, 89.7 / 89.7 / 88.9 %; aircraft (1, 2) 831 / 849 m, 93.9 / 93.9 %. roughen 0 at 0.05: AHRS
+    # ship (Tasman 3 seeds) 76 %; 2 m/rts with roughen 0.1: AHRS ship 71 %.
+    pos_noise_m_rts: float = 1.0
     # readings are not independent at 1 Hz: each white part is inflated by the number of readings that share one
     # sample of it, so n correlated readings count as one --
     #   R = sigma^2 max(1, noise_corr_s / dt) + white_sigma^2 max(1, white_corr_length_m / (speed dt)),
