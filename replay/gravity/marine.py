@@ -17,6 +17,10 @@ a random contiguous block, 330 m spacing) plus white sensor noise; the Eotvos ef
 and then removed with the navigator's velocity and latitude (Gao eqs. 5-6), so an INS velocity error leaves an
 Eotvos error in the reading.
 
+With ``--ahrs-seeds`` the same ships also run with the live ship flights' IMU (AHRS_INS: a tactical IMU whose
+attitude the navigator holds to the autopilot's AHRS, so no Schuler loop and a north velocity error that grows to
+10-20 m/s), the filter told the same as the live runs' ``gravity.seq_*`` settings.
+
     nice -n 10 .venv/bin/python -m replay.gravity.marine --seeds 12
 """
 
