@@ -130,12 +130,14 @@ class SeqGravConfig:
     # direct position random walk, m / sqrt(s): also the noise of eq. 23's pseudo-measurement, so it floors each
     # particle's velocity variance (0.05 m / sqrt(s) left 0.02 m/s, and a cloud whose velocity spread lived only across
     # particles: with the live ship flights' AHRS-held IMU at 8 m/s, whose north velocity error grows to 10-20 m/s
-    # unobserved, it locked 20-50 km off with a km-wide cloud). Chosen with roughen on the tuning seeds
-    # (replay.gravity.marine TUNING_SEEDS; AK + Tasman ship, the same with that IMU (--ahrs-seeds), the aircraft case):
-    # roughen 0.1 / 0.05 m/rts (the old defaults): ship aided / INS 0.46, 94.7 % within 2 h_acc; AHRS ship 0.62, 32 %;
-    # aircraft 818 m, 90.2 %. roughen 0 with 1 / 2 / 4 m/rts: ship 0.45 / 0.44 / 0.45, 96.2 / 96.1 / 97.2 %; AHRS ship
-    # 0.16 / 0.16 / 0.17, 89.7 / 89.7 / 88.9 %; aircraft (1, 2) 831 / 849 m, 93.9 / 93.9 %. roughen 0 at 0.05: AHRS
-    # ship (Tasman 3 seeds) 76 %; 2 m/rts with roughen 0.1: AHRS ship 71 %.
+    # unobserved, it locked 20-50 km off with a km-wide cloud). Chosen with roughen on the tuning seeds: `python -m
+    # replay.gravity.marine --first-seed 100 --seeds 6 --maps AK,Tasman --aircraft-seeds 6 --ahrs-seeds 6
+    # --pmf-seeds 0 --no-write --roughen R --pos-noise Q`; aided / INS and within 2 h_acc, AK | Tasman | AK, Tasman
+    # with the AHRS-held IMU | aircraft (mean):
+    #   R 0.1, Q 0.05 (the old defaults): 0.40, 99.1 % | 0.52, 90.3 % | 0.44, 34.0 %; 0.80, 30.9 % | 867 m, 89.0 %
+    #   R 0, Q 1:                         0.40, 99.0 % | 0.49, 93.4 % | 0.17, 79.7 %; 0.15, 99.6 % | 831 m, 93.9 %
+    #   R 0, Q 2:                         0.37, 99.1 % | 0.52, 94.7 % | 0.19, 80.7 %; 0.14, 99.8 % | 830 m, 95.8 %
+    #   R 0, Q 4:                         0.39, 99.1 % | 0.50, 95.3 % | 0.18, 78.7 %; 0.15, 99.2 %
     pos_noise_m_rts: float = 1.0
     # readings are not independent at 1 Hz: each white part is inflated by the number of readings that share one
     # sample of it, so n correlated readings count as one --

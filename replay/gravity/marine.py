@@ -60,9 +60,10 @@ MARINE_INS = InsErrorModel(gyro_bias_degph=0.01, accel_bias_ug=100.0, gyro_arw_d
 AHRS_INS = InsErrorModel(gyro_bias_degph=0.0, accel_bias_ug=204.0, gyro_arw_deg_rthr=0.0, accel_vrw_ug_rthz=408.0,
                          init_vel_sigma_mps=0.02, attitude_tau_s=60.0, attitude_tilt_sigma_rad=float(np.radians(0.02)),
                          attitude_heading_sigma_rad=float(np.radians(0.05)))
-#: what the filter is told about AHRS_INS: the live runs' --set gravity.seq_* values
-AHRS_SPEC = InsErrorSpec(accel_bias_ug=204.0, accel_vrw_ug_rthz=408.0, attitude_tau_s=60.0,
-                         attitude_tilt_sigma_rad=0.000349, attitude_heading_sigma_rad=0.000873)
+#: what the filter is told about AHRS_INS: the live runs' --set gravity.seq_* values (the sigmas rounded as there)
+AHRS_SPEC = InsErrorSpec(accel_bias_ug=AHRS_INS.accel_bias_ug, accel_vrw_ug_rthz=AHRS_INS.accel_vrw_ug_rthz,
+                         attitude_tau_s=AHRS_INS.attitude_tau_s, attitude_tilt_sigma_rad=0.000349,
+                         attitude_heading_sigma_rad=0.000873)
 INS_MODELS = {"marine": (MARINE_INS, None), "ahrs": (AHRS_INS, AHRS_SPEC)}
 
 
@@ -429,6 +430,8 @@ def main(argv=None) -> int:
     ap.add_argument("--particles", type=int, default=SeqGravConfig().n_particles)
     ap.add_argument("--roughen", type=float, default=None,
                     help="position kernel bandwidth after resampling (default: SeqGravConfig.roughen)")
+    ap.add_argument("--pos-noise", type=float, default=None,
+                    help="position process noise, m/sqrt(s) (default: SeqGravConfig.pos_noise_m_rts)")
     ap.add_argument("--learn-window-km", type=float, default=None,
                     help="learn the map misfit's sigma over this distance (0: off; default: MapErrorSpec.learn_window_m)")
     ap.add_argument("--workers", type=int, default=1)
@@ -443,6 +446,8 @@ def main(argv=None) -> int:
     cfg = SeqGravConfig(n_particles=a.particles)
     if a.roughen is not None:
         cfg = replace(cfg, roughen=a.roughen)
+    if a.pos_noise is not None:
+        cfg = replace(cfg, pos_noise_m_rts=a.pos_noise)
     if a.learn_window_km is not None:
         cfg = replace(cfg, map_error=replace(cfg.map_error, learn_window_m=1e3 * a.learn_window_km))
     maps = [m for m in a.maps.split(",") if m]

@@ -85,13 +85,12 @@ def test_ins_with_attitude_reference():
     b = np.hypot(*out.accel_bias_mps2[:2])
     t_end = tr.t_s[-1]
     assert np.hypot(*out.pos_err_ne_m[-1]) == pytest.approx(0.5 * b * t_end**2, rel=1e-3)
-    # the same bias in a free INS stays Schuler-bounded (~2 b R / g, see test_ins_drift_is_realistic): 2 % of that
+    # the same bias in a free INS stays Schuler-bounded (~2 b R / g, see test_ins_drift_is_realistic): under 2 % of
+    # the held INS's b t^2 / 2
     free = simulate_ins(tr, 30.0, replace(bias_only, attitude_tau_s=0.0), np.random.default_rng(1))
     assert np.hypot(*free.pos_err_ne_m.T).max() < 0.02 * 0.5 * b * t_end**2
-    # a free INS draws what it always drew (the attitude mode's draws come after), whatever the unused sigmas
-    np.testing.assert_array_equal(
-        simulate_ins(tr, 30.0, InsErrorModel(), np.random.default_rng(5)).pos_err_ne_m,
-        simulate_ins(tr, 30.0, replace(InsErrorModel(), attitude_tilt_sigma_rad=1.0), np.random.default_rng(5)).pos_err_ne_m)
+    # the attitude mode draws after the free INS's draws, so the same seed gives the same accelerometer bias
+    np.testing.assert_array_equal(out.accel_bias_mps2, free.accel_bias_mps2)
 
 
 def test_measurements_and_eotvos_correction_consistent():
