@@ -10,8 +10,8 @@ flight log does not have. This module does the loosely coupled equivalent on pos
   measurements. Used when the source has no IMU, or its IMU rate is below ``min_imu_rate_hz`` (a
   telemetry log streams RAW_IMU at ~1 Hz: far too slow to integrate), or no attitude is available to
   initialise the INS. The choice and its reason are emitted as :class:`ModeChange` and exposed as
-  :attr:`Navigator.mode` / :attr:`Navigator.mode_reason`. The kinematic filter always runs alongside, so
-  the navigator can fall back at once if the IMU stream stops in flight.
+  :attr:`Navigator.mode` / :attr:`Navigator.mode_reason`. If the IMU stops in flight it falls back at the next
+  fix and starts the kinematic filter from it (no standby beside the INS: ~9 % of the live process's CPU).
 
 Measurements (companion.nav.measurements: one ``compute(state) -> (y, H, R)`` contract, one gate): GNSS position
 and velocity, KNN predictor points at each 10 Hz tick after the last fix, the autopilot's attitude, altitude and
@@ -211,12 +211,12 @@ class Navigator(Modes, InsFilter, KinematicFilter, Aids, Recovery, AhrsHeadingCh
             if accepted and vel is not None and c.fuse_gnss_velocity and math.isfinite(vel[2]):
                 self._ins_apply(VelocityMeasurement(t, "gnss_vel", vel, c.gnss_vel_sigma_mps, c.gate_chi2,
                                                     self._gnss_vel_delay_s()))
-        if self._kin is None:
+        if self.mode == "ins":
+            self._kin = None  # not kept as a standby: a fallback to kinematic mode starts it from that fix
+        elif self._kin is None:
             self._kin_init(t, z, vel)
         else:
-            acc_k = self._kin_update(m, record=self.mode != "ins")
-            if self.mode != "ins":
-                accepted = acc_k
+            accepted = self._kin_update(m, record=True)
         if accepted:
             self._fix_accepted(t, z, sh, sv, vel)
         if self._next_tick is None:

@@ -254,3 +254,25 @@ def test_autopilot_heading_offset_is_detected_and_ins_heading_realigned(offset_d
     assert any(u.sigma[2] < 1.0 for u in ups) == (offset_deg == 0.0)
     _t, err, _cov = _errors(sim, fused)
     assert np.sqrt((err[:, :2] ** 2).sum(axis=1).mean()) < 1.0
+
+
+def test_imu_stopping_falls_back_to_kinematic_from_the_fix():
+    """The kinematic filter is not run beside the INS: when the IMU stops mid-flight, the fallback starts it from the
+    next fix (and that fix's velocity); the output goes on at 10 Hz and stays on the vehicle after the switch."""
+    sim = simulate_circle_flight(60.0, np.random.default_rng(6), noise=RECEIVER)
+    t0 = sim.events[0].t_s
+    events = [e for e in sim.events if not (isinstance(e, ImuSample) and e.t_s > t0 + 35.0)]
+    out = run_navigator(events, NavigatorConfig(gnss_vel_delay_s=0.0))
+    changes = [(m.mode, m.t_s) for m in out if isinstance(m, ModeChange)]
+    assert [m for m, _ in changes][-2:] == ["ins", "kinematic"]
+    t_switch = changes[-1][1]
+    assert t0 + 35.0 < t_switch < t0 + 35.0 + NavigatorConfig().imu_timeout_s + 1.0
+    kin = _fused(out, "kinematic")
+    assert kin and kin[0].t_s >= t_switch
+    _t, err, _c = _errors(sim, kin)
+    herr = np.hypot(err[:, 0], err[:, 1])
+    assert herr.max() < 3.0, herr.max()
+    assert np.sqrt((herr ** 2).mean()) < 1.5
+    ups = [u for u in out if isinstance(u, MeasurementUpdate) and u.kind == "gnss_pos" and u.filter == "kinematic"
+           and u.t_s > t_switch]
+    assert len(ups) > 100 and np.mean([u.accepted for u in ups]) > 0.95
