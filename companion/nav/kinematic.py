@@ -1,7 +1,7 @@
 """The navigator's kinematic fallback: a 6-state constant-velocity Kalman filter (white-noise acceleration) on the
 same measurements as the INS filter, mixed with a hold model (companion.nav.hold_cv, ``kinematic_hold_cv``). Used
-when the source has no IMU, or its IMU is too slow to integrate, or no attitude initialises the INS; it always runs
-alongside, so the navigator can fall back at once. A mixin of companion.nav.navigator.Navigator (its state lives on
+when the source has no IMU, or its IMU is too slow to integrate, or no attitude initialises the INS, and after an IMU
+that stopped in flight (then started from the next fix; it does not run beside the INS). A mixin of companion.nav.navigator.Navigator (its state lives on
 the navigator)."""
 
 from __future__ import annotations
