@@ -1,8 +1,8 @@
 """The navigator's kinematic fallback: a 6-state constant-velocity Kalman filter (white-noise acceleration) on the
 same measurements as the INS filter, mixed with a hold model (companion.nav.hold_cv, ``kinematic_hold_cv``). Used
 when the source has no IMU, or its IMU is too slow to integrate, or no attitude initialises the INS, and after an IMU
-that stopped in flight (then started from the next fix; it does not run beside the INS). A mixin of companion.nav.navigator.Navigator (its state lives on
-the navigator)."""
+that stopped in flight (then started from the next fix; it does not run beside the INS). A mixin of
+companion.nav.navigator.Navigator (its state lives on the navigator)."""
 
 from __future__ import annotations
 
