@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from replay.harness.baselines import constant_velocity, hold_last_fix, series_at, withhold_aiding
+from replay.harness.overrides import apply_overrides
 from companion.nav.navigator import NavigatorConfig, run_navigator
 from companion.nav.outputs import FusedState, ModeChange, NavigatorReset, PredictorPoint
 from companion.events import Event, GnssFix, ImuSample
@@ -318,30 +319,6 @@ def throughput(log: LogData, cfg: NavigatorConfig) -> tuple[float, float, float,
     return log.duration_s / cpu, wall, cpu, mode
 
 
-def _apply_overrides(cfg, overrides: list[str]):
-    """``FIELD=VALUE`` strings -> a NavigatorConfig with those fields replaced (typed like the default); a nested
-    settings field as ``GROUP.FIELD=VALUE`` (e.g. ``motion.select=true``)."""
-    types = {f.name: type(getattr(cfg, f.name)) for f in dataclasses.fields(cfg)}
-    kw = {}
-    nested: dict[str, list[str]] = {}
-    for item in overrides:
-        name, sep, val = item.partition("=")
-        group, dot, sub = name.partition(".")
-        if dot and group in types and dataclasses.is_dataclass(getattr(cfg, group)):
-            nested.setdefault(group, []).append(f"{sub}={val}")
-            continue
-        if not sep or name not in types:
-            raise SystemExit(f"--set {item!r}: expected FIELD=VALUE with FIELD one of {sorted(types)}")
-        ty = types[name]
-        if ty is bool:
-            kw[name] = val.strip().lower() in ("1", "true", "yes", "on")
-        else:
-            kw[name] = ty(val)
-    for group, items in nested.items():
-        kw[group] = _apply_overrides(getattr(cfg, group), items)
-    return dataclasses.replace(cfg, **kw)
-
-
 def main(argv: list[str] | None = None) -> int:
     from replay.gap_filling_plots import example, plot_rmse
 
@@ -364,7 +341,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     from tqdm import tqdm
 
-    cfg = _apply_overrides(NavigatorConfig(gnss_delay_s=args.gnss_delay_s), args.overrides)
+    cfg = apply_overrides(NavigatorConfig(gnss_delay_s=args.gnss_delay_s), args.overrides)
     dec = args.decimate_hz or None
     paths = sorted(p for p in args.logs_dir.glob("*") if p.suffix.lower() in (".bin", ".tlog")
                    and (not args.logs or any(k in p.name for k in args.logs)))

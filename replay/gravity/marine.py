@@ -42,6 +42,7 @@ from companion.gravity.eotvos import eotvos_from_ne_mgal
 from companion.gravity.maps import GravityMap, LocalGravityMap, load_grid
 from companion.gravity.data import TASMAN
 from replay.gravity.areas import AREAS, area_box_ne, area_map, load_marine
+from replay.harness.overrides import apply_overrides
 from replay.harness.results import RESULTS_DIR, write_section
 from companion.sim.gravity_residuals import ship_minus_satellite_mgal
 from companion.sim.gravity_scenario import (GravimeterModel, InsErrorModel, Segment, ScenarioTrack, gravimeter_noise_mgal,
@@ -434,6 +435,9 @@ def main(argv=None) -> int:
                     help="position process noise, m/sqrt(s) (default: SeqGravConfig.pos_noise_m_rts)")
     ap.add_argument("--learn-window-km", type=float, default=None,
                     help="learn the map misfit's sigma over this distance (0: off; default: MapErrorSpec.learn_window_m)")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="FIELD=VALUE",
+                    help="override a SeqGravConfig field, nested as GROUP.FIELD (e.g. --set map_error.white_sigma_mgal=1 "
+                         "--set resample_frac=0.3); repeatable, after the options above")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--no-write", action="store_true")
     a = ap.parse_args(argv)
@@ -450,6 +454,7 @@ def main(argv=None) -> int:
         cfg = replace(cfg, pos_noise_m_rts=a.pos_noise)
     if a.learn_window_km is not None:
         cfg = replace(cfg, map_error=replace(cfg.map_error, learn_window_m=1e3 * a.learn_window_km))
+    cfg = apply_overrides(cfg, a.overrides)
     maps = [m for m in a.maps.split(",") if m]
     seeds = list(range(a.first_seed, a.first_seed + a.seeds))
     jobs = [(m, s, ship, cut, a.min_track_std, cfg) for m in maps for s in seeds]
