@@ -308,7 +308,20 @@ def summarise(runs: list[dict]) -> dict:
             "h_mean": float(h.mean()), "ok": float(np.mean(st == "ok")), "no_signal": float(np.mean(st == "no_signal")),
             "reinit": int(sum(r["reinit"] for r in runs)), "better_runs": int(sum(r["err_m"].mean() < r["ins_err_m"].mean() for r in runs)),
             "cpu_med": float(np.median(cpu)), "cpu_p99": float(np.percentile(cpu, 99)), "cpu_max": float(cpu.max()),
-            "track_std": float(np.mean([r["track_std_mgal"] for r in runs]))}
+            "track_std": float(np.mean([r["track_std_mgal"] for r in runs])), "ratio_ci": ratio_interval(runs)}
+
+
+def ratio_interval(runs: list[dict], level: float = 0.9, n_boot: int = 2000) -> tuple[float, float]:
+    """``level`` bootstrap interval of aided / INS (the ratio of the pooled means) over runs drawn with replacement: how
+    much of a map's ratio is the draw of its seeds (tracks, INS errors, noise, the filter's own sampling)."""
+    e = np.array([float(r["err_m"].sum(dtype=float)) for r in runs])
+    i = np.array([float(r["ins_err_m"].sum(dtype=float)) for r in runs])
+    if len(runs) < 2:
+        return (float("nan"), float("nan"))
+    idx = np.random.default_rng(0).integers(0, len(runs), (n_boot, len(runs)))
+    ratios = e[idx].sum(axis=1) / i[idx].sum(axis=1)
+    lo, hi = np.percentile(ratios, [50 * (1 - level), 50 * (1 + level)])
+    return (float(lo), float(hi))
 
 
 def _within2_after(runs: list[dict], t0_s: float) -> float:
@@ -352,13 +365,14 @@ def _plot(path, groups: dict[str, list[dict]], title: str) -> None:
 
 def _row(label, cell, s):
     return [label, cell, s["n"], f"{s['track_std']:.0f}", f"{s['mean']:.0f}", f"{s['p95']:.0f}", f"{s['max']:.0f}",
-            f"{s['ins_mean']:.0f}", f"{s['ins_p95']:.0f}", f"{s['ins_max']:.0f}", f"{s['ratio']:.2f}",
+            f"{s['ins_mean']:.0f}", f"{s['ins_p95']:.0f}", f"{s['ins_max']:.0f}",
+            f"{s['ratio']:.2f} ({s['ratio_ci'][0]:.2f}-{s['ratio_ci'][1]:.2f})",
             f"{s['better_runs']}/{s['n']}", f"{100 * s['within2']:.1f} %", f"{100 * s['within1']:.1f} %",
             f"{100 * s['ok']:.0f} / {100 * s['no_signal']:.0f} %", s["reinit"], f"{s['cpu_med']:.2f} / {s['cpu_p99']:.2f}"]
 
 
 HEADER = ["map", "cell", "runs", "track map STD (mGal)", "aided mean (m)", "aided p95", "aided max", "INS mean (m)", "INS p95",
-          "INS max", "aided / INS", "runs better than INS", "within 2 h_acc", "within 1 h_acc", "status ok / no_signal",
+          "INS max", "aided / INS (90 % interval over runs)", "runs better than INS", "within 2 h_acc", "within 1 h_acc", "status ok / no_signal",
           "re-inits", "CPU ms/reading median / p99"]
 
 
@@ -555,7 +569,8 @@ def main(argv=None) -> int:
     for m in two:
         sm = sums[m]
         tgt.append([f"ship 8 m/s, 2' map ({m}): aided mean <= 0.5 x INS alone", f"{sm['ratio']:.2f} x "
-                    f"({sm['mean']:.0f} vs {sm['ins_mean']:.0f} m)", "met" if sm["ratio"] <= 0.5 else "NOT met"])
+                    f"({sm['mean']:.0f} vs {sm['ins_mean']:.0f} m; 90 % interval over runs {sm['ratio_ci'][0]:.2f}-"
+                    f"{sm['ratio_ci'][1]:.2f})", "met" if sm["ratio"] <= 0.5 else "NOT met"])
         tgt.append([f"ship 8 m/s, 2' map ({m}): aided mean <= 3 km", f"{sm['mean']:.0f} m",
                     "met" if sm["mean"] <= 3000 else "NOT met"])
         tgt.append([f"ship 8 m/s, 2' map ({m}): >= 90 % within 2 h_acc", f"{100 * sm['within2']:.1f} %",

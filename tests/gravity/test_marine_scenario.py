@@ -6,8 +6,8 @@ import pytest
 
 from companion.gravity.maps import GravityMap, LocalGravityMap
 from companion.gravity.eotvos import eotvos_from_ne_mgal
-from replay.gravity.marine import (MARINE_INS, GnssModel, MapCase, ShipProfile, draw_track, ship_segments,
-                                   simulate_marine)
+from replay.gravity.marine import (MARINE_INS, GnssModel, MapCase, ShipProfile, draw_track, ratio_interval,
+                                   ship_segments, simulate_marine)
 from tests.conftest import SHARED, require
 
 
@@ -97,3 +97,17 @@ def test_ahrs_held_imu_at_ship_speed_keeps_honest_accuracy():
     h_acc = np.concatenate([r["h_acc_m"] for r in runs])
     assert np.mean(err <= 2.0 * h_acc) >= 0.90
     assert err.mean() < 0.6 * np.concatenate([r["ins_err_m"] for r in runs]).mean()
+
+
+def test_ratio_interval_over_runs():
+    """The bootstrap interval of aided / INS: a point when every run has the same ratio; around the pooled ratio and
+    inside the runs' own range when they differ; the same numbers every time (seeded)."""
+    def run(aided_m, ins_m, n=100):
+        return {"err_m": np.full(n, aided_m, dtype=np.float32), "ins_err_m": np.full(n, ins_m, dtype=np.float32)}
+
+    lo, hi = ratio_interval([run(500, 1000), run(250, 500), run(800, 1600)])
+    assert lo == pytest.approx(0.5) and hi == pytest.approx(0.5)
+    runs = [run(a, 1000) for a in (300, 400, 500, 600, 700, 900)]
+    lo, hi = ratio_interval(runs)
+    assert 0.3 < lo < 0.5667 < hi < 0.9 and hi - lo > 0.1
+    assert ratio_interval(runs) == (lo, hi)
