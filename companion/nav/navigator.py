@@ -11,7 +11,7 @@ flight log does not have. This module does the loosely coupled equivalent on pos
   telemetry log streams RAW_IMU at ~1 Hz: far too slow to integrate), or no attitude is available to
   initialise the INS. The choice and its reason are emitted as :class:`ModeChange` and exposed as
   :attr:`Navigator.mode` / :attr:`Navigator.mode_reason`. If the IMU stops in flight it falls back at the next
-  fix and starts the kinematic filter from it (no standby beside the INS: 6-12 % of a replay's CPU).
+  fix and starts the kinematic filter from it (no standby beside the INS: 6-11 % of a replay's CPU).
 
 Measurements (companion.nav.measurements: one ``compute(state) -> (y, H, R)`` contract, one gate): GNSS position
 and velocity, KNN predictor points at each 10 Hz tick after the last fix, the autopilot's attitude, altitude and

@@ -314,10 +314,10 @@ def summarise(runs: list[dict]) -> dict:
 def ratio_interval(runs: list[dict], level: float = 0.9, n_boot: int = 2000) -> tuple[float, float]:
     """``level`` bootstrap interval of aided / INS (the ratio of the pooled means) over runs drawn with replacement: how
     much of a map's ratio is the draw of its seeds (tracks, INS errors, noise, the filter's own sampling)."""
-    e = np.array([float(r["err_m"].sum(dtype=float)) for r in runs])
-    i = np.array([float(r["ins_err_m"].sum(dtype=float)) for r in runs])
     if len(runs) < 2:
         return (float("nan"), float("nan"))
+    e = np.array([float(r["err_m"].sum(dtype=float)) for r in runs])
+    i = np.array([float(r["ins_err_m"].sum(dtype=float)) for r in runs])
     idx = np.random.default_rng(0).integers(0, len(runs), (n_boot, len(runs)))
     ratios = e[idx].sum(axis=1) / i[idx].sum(axis=1)
     lo, hi = np.percentile(ratios, [50 * (1 - level), 50 * (1 + level)])
