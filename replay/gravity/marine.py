@@ -27,6 +27,7 @@ attitude the navigator holds to the autopilot's AHRS, so no Schuler loop and a n
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -35,7 +36,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from companion.gravity.sequential import InsErrorSpec, SeqGravConfig, SeqGravTrack, run_batch
+from companion.gravity.sequential import InsErrorSpec, MapErrorSpec, SeqGravConfig, SeqGravTrack, run_batch
 from companion.gravity.data import LOCAL_1KM
 from companion.shared_data import shared_gravity_dir
 from companion.gravity.eotvos import eotvos_from_ne_mgal
@@ -192,6 +193,29 @@ def residual_series_mgal() -> np.ndarray:
     return np.r_[r, r[::-1]]
 
 
+def model_residual_series_mgal(spec: MapErrorSpec, n: int = 20_000, spacing_m: float = 330.0, seed: int = 0) -> np.ndarray:
+    """A misfit series drawn from a MapErrorSpec at the real series' sample spacing: first-order Gauss-Markov in
+    distance (sigma_mgal, corr_length_m) plus the short-scale white part (white_sigma_mgal, one draw per sample)."""
+    rng = np.random.default_rng([seed, 11])
+    phi = math.exp(-spacing_m / spec.corr_length_m)
+    drive = rng.normal(0.0, spec.sigma_mgal * math.sqrt(1.0 - phi * phi), n)
+    x = np.empty(n)
+    x[0] = rng.normal(0.0, spec.sigma_mgal)
+    for k in range(1, n):
+        x[k] = phi * x[k - 1] + drive[k]
+    return x + rng.normal(0.0, spec.white_sigma_mgal, n)
+
+
+def _residuals(kind: str, spec: MapErrorSpec) -> np.ndarray | None:
+    if kind == "real":
+        return None
+    if kind == "none":
+        return np.zeros(2)
+    if kind == "model":
+        return model_residual_series_mgal(spec)
+    raise ValueError(f"residuals: 'real', 'none' or 'model', not {kind!r}")
+
+
 @dataclass(frozen=True)
 class GnssModel:
     cut_s: float = 1200.0
@@ -276,16 +300,19 @@ PAPERS = [
 
 
 def bench_one(case_name: str, seed: int, profile: ShipProfile, cut_s: float, min_track_std_mgal: float,
-              cfg: SeqGravConfig, ins_kind: str = "marine") -> dict:
+              cfg: SeqGravConfig, ins_kind: str = "marine", residuals: str = "real") -> dict:
     """One run: the track, the scenario and the filter from one seed; errors from the cut to the end. ins_kind: a key of
-    INS_MODELS (the same seed draws the same track whatever the INS); a non-marine INS is labelled 'case+ins'."""
+    INS_MODELS (the same seed draws the same track whatever the INS); a non-marine INS is labelled 'case+ins'.
+    ``residuals``: the map-minus-sensor misfit in the readings -- "real" (the ship-minus-satellite series), "none" (white
+    noise only) or "model" (a series drawn from the filter's own MapErrorSpec); every other draw is the same."""
     case = map_case(case_name)
     rng = np.random.default_rng([seed, 1])
     traj = draw_track(case, profile, rng, min_track_std_mgal=min_track_std_mgal)
     ins_model, spec = INS_MODELS[ins_kind]
     if spec is not None:
         cfg = replace(cfg, ins=spec)
-    run = simulate_marine(case.truth_map, traj, rng, ins_model=ins_model, gnss=GnssModel(cut_s=cut_s))
+    run = simulate_marine(case.truth_map, traj, rng, ins_model=ins_model, gnss=GnssModel(cut_s=cut_s),
+                          residuals_mgal=_residuals(residuals, cfg.map_error))
     tr = run_filter(case.filter_map, run, cfg, seed)
     sel = tr.t_s >= cut_s
     i = tr.index[sel]

@@ -111,3 +111,58 @@ def test_ratio_interval_over_runs():
     lo, hi = ratio_interval(runs)
     assert 0.3 < lo < 0.5667 < hi < 0.9 and hi - lo > 0.1
     assert ratio_interval(runs) == (lo, hi)
+
+
+def test_misfit_free_readings_keep_every_other_draw():
+    """The ablation (replay.gravity.marine_ablation) zeroes the residual block: same track, INS and white noise, and the
+    readings differ by exactly a block of the residual series."""
+    case = _case()
+
+    def run(res):
+        rng = np.random.default_rng(5)
+        traj = draw_track(case, ShipProfile(hours=0.5), rng, margin_m=30_000.0)
+        return simulate_marine(case.truth_map, traj, rng, gnss=GnssModel(cut_s=600.0), residuals_mgal=res)
+
+    a, b = run(RES), run(np.zeros(2))
+    for name in ("true_ne_m", "nav_ne_m", "nav_vel_ne_mps", "map_true_mgal"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    lat = np.full(a.t_s.size, 45.0)
+    noise_a, noise_b = (r.gravity_raw_mgal - r.map_true_mgal - eotvos_from_ne_mgal(r.true_vel_ne_mps, lat) for r in (a, b))
+    assert np.std(noise_b) < 1.2 < 4.0 < np.std(noise_a)  # 1 mGal white only / plus the 5 mGal residuals
+    diff = noise_a - noise_b
+    assert np.abs(diff[:, None] - RES[None, :]).min(axis=1).max() < 1e-9
+
+
+def test_ablation_cases():
+    from companion.gravity.sequential import SeqGravConfig
+    from replay.gravity.marine_ablation import TOLD, cases
+
+    cfg = SeqGravConfig()
+    (_, r0, c0), (_, r1, c1), (_, r2, c2), (_, r3, c3) = cases(cfg)
+    assert (r0, r1, r2, r3) == ("real", "model", "none", "none") and c0 == c1 == c2 == cfg
+    c2 = c3
+    assert c2.map_error.sigma_mgal == TOLD["map_error.sigma_mgal"] < cfg.map_error.sigma_mgal
+    assert c2.map_error.learn_window_m == 0.0 and _only_misfit_differs(c2, cfg)
+
+
+def _only_misfit_differs(a, b) -> bool:
+    from dataclasses import replace
+
+    return replace(a, map_error=b.map_error) == b
+
+
+def test_model_residual_series_has_the_model_statistics():
+    """Structure function D(lag) = 2 sigma^2 (1 - exp(-lag / L)) + 2 white^2 of the series drawn from a MapErrorSpec."""
+    from companion.gravity.sequential import MapErrorSpec
+    from replay.gravity.marine import _residuals, model_residual_series_mgal
+
+    spec = MapErrorSpec(sigma_mgal=5.0, corr_length_m=10_000.0, white_sigma_mgal=0.5)
+    x = model_residual_series_mgal(spec, n=200_000, spacing_m=500.0)
+    np.testing.assert_array_equal(x, model_residual_series_mgal(spec, n=200_000, spacing_m=500.0))
+    for k in (1, 4, 20, 100):
+        d = np.mean((x[k:] - x[:-k]) ** 2)
+        model = 2 * 25.0 * (1 - np.exp(-k * 500.0 / 10_000.0)) + 2 * 0.25
+        assert d == pytest.approx(model, rel=0.1)
+    assert _residuals("real", spec) is None and not _residuals("none", spec).any()
+    with pytest.raises(ValueError):
+        _residuals("gaussian", spec)
