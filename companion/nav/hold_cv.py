@@ -45,16 +45,42 @@ class HoldCvConfig:
 HOLD, CV = 0, 1
 
 
+# the flat indices of the diagonals of a 6 x 6 matrix's 3 x 3 blocks: (0:3, 0:3), (0:3, 3:6), (3:6, 0:3), (3:6, 3:6)
+_D00, _D01, _D10, _D11 = ([6 * i + i + off for i in range(3)] for off in (0, 3, 18, 21))
+
+
 def cv_model(dt: float, accel_sigma_mps2: float) -> tuple[np.ndarray, np.ndarray]:
-    """(F, Q) of the constant-velocity model over dt: white-noise acceleration of ``accel_sigma_mps2``."""
+    """(F, Q) of the constant-velocity model over dt: white-noise acceleration of ``accel_sigma_mps2``. (Each block is
+    a multiple of I; its diagonal is set from the scalar product, the same operations in the same order as I x dt^4 /
+    4 x s2, so the same bits.)"""
     F = np.eye(6)
-    F[0:3, 3:6] = np.eye(3) * dt
+    F.flat[_D01] = dt
     s2 = accel_sigma_mps2**2
     Q = np.zeros((6, 6))
-    Q[0:3, 0:3] = np.eye(3) * dt**4 / 4 * s2
-    Q[0:3, 3:6] = Q[3:6, 0:3] = np.eye(3) * dt**3 / 2 * s2
-    Q[3:6, 3:6] = np.eye(3) * dt**2 * s2
+    Q.flat[_D00] = dt**4 / 4 * s2
+    Q.flat[_D01] = Q.flat[_D10] = dt**3 / 2 * s2
+    Q.flat[_D11] = dt**2 * s2
     return F, Q
+
+
+def _hold_F() -> np.ndarray:
+    F = np.eye(6)
+    F[3:6, 3:6] = 0.0
+    F.flags.writeable = False
+    return F
+
+
+_HOLD_F = _hold_F()  # the hold model: position kept, velocity zero (read-only: shared)
+
+
+def _mix(w0: float, a: tuple, w1: float, b: tuple, x: np.ndarray) -> np.ndarray:
+    """w0 (P_a + (x_a - x)(x_a - x)') + w1 (P_b + ...): the moment-matched covariance of two Gaussians about x, with
+    sum()'s arithmetic (0 + first + second) so the same bits."""
+    da, db = a[0] - x, b[0] - x
+    P = w0 * (a[1] + da @ da.T)
+    P += 0
+    P += w1 * (b[1] + db @ db.T)
+    return P
 
 
 def reset_position(kf: KalmanFilter, z, R) -> None:
@@ -132,21 +158,17 @@ class HoldCvFilter:
         p = 1.0 - math.exp(-dt / self.config.dwell_s)
         M = np.array([[1.0 - p, p], [p, 1.0 - p]])  # M[i, j]: from model i to model j
         c = M.T @ self.mu
-        xs = [m.x for m in self.models]
-        Ps = [m.P for m in self.models]
+        a, b = ((m.x, m.P) for m in self.models)
         for j, m in enumerate(self.models):
-            w = M[:, j] * self.mu / c[j]
-            x0 = w[0] * xs[0] + w[1] * xs[1]
-            P0 = sum(w[i] * (Ps[i] + (xs[i] - x0) @ (xs[i] - x0).T) for i in range(2))
-            m.x, m.P = x0, P0
+            w0, w1 = (M[:, j] * self.mu / c[j]).tolist()
+            x0 = w0 * a[0] + w1 * b[0]
+            m.x, m.P = x0, _mix(w0, a, w1, b, x0)
         self.mu = c
         hold, cv = self.models
-        F = np.eye(6)
-        F[3:6, 3:6] = 0.0
         Q = np.zeros((6, 6))
-        Q[0:3, 0:3] = np.eye(3) * (self.config.hold_speed_mps * dt) ** 2
-        Q[3:6, 3:6] = np.eye(3) * 1e-4
-        hold.predict(F=F, Q=Q)
+        Q.flat[_D00] = (self.config.hold_speed_mps * dt) ** 2
+        Q.flat[_D11] = 1e-4
+        hold.predict(F=_HOLD_F, Q=Q)
         cv.predict(*cv_model(dt, self.accel_sigma_mps2))
         self._combine()
 
@@ -154,10 +176,11 @@ class HoldCvFilter:
         """Both models updated with z = H x + v, v ~ N(0, R); with ``evidence`` the mode probabilities too."""
         like = np.empty(2)
         for j, m in enumerate(self.models):
-            y = z - H @ m.x
-            S = H @ m.P @ H.T + R
-            Si = inverse(S)
-            like[j] = float(np.exp(-0.5 * (y.T @ Si @ y).item()) / math.sqrt(max(np.linalg.det(2 * math.pi * S), 1e-300)))
+            if evidence:  # (a pseudo-measurement's likelihood is not used)
+                y = z - H @ m.x
+                S = H @ m.P @ H.T + R
+                Si = inverse(S)
+                like[j] = float(np.exp(-0.5 * (y.T @ Si @ y).item()) / math.sqrt(max(np.linalg.det(2 * math.pi * S), 1e-300)))
             m.update(z, R=R, H=H)
         if evidence:
             mu = self.mu * like
@@ -181,6 +204,7 @@ class HoldCvFilter:
         self._combine()
 
     def _combine(self) -> None:
-        xs = [m.x for m in self.models]
-        self.x = self.mu[0] * xs[0] + self.mu[1] * xs[1]
-        self.P = sum(self.mu[j] * (m.P + (xs[j] - self.x) @ (xs[j] - self.x).T) for j, m in enumerate(self.models))
+        a, b = ((m.x, m.P) for m in self.models)
+        mu0, mu1 = self.mu.tolist()
+        self.x = mu0 * a[0] + mu1 * b[0]
+        self.P = _mix(mu0, a, mu1, b, self.x)
