@@ -206,13 +206,15 @@ def model_residual_series_mgal(spec: MapErrorSpec, n: int = 20_000, spacing_m: f
     return x + rng.normal(0.0, spec.white_sigma_mgal, n)
 
 
-def _residuals(kind: str, spec: MapErrorSpec) -> np.ndarray | None:
+def _residuals(kind: str, spec: MapErrorSpec, n: int) -> np.ndarray | None:
+    """The misfit series of a run (None: the real one). ``n``: the real series' length, so that the block's start
+    (rng.integers(0, n)) takes the same draw and every later draw stays the same."""
     if kind == "real":
         return None
     if kind == "none":
-        return np.zeros(2)
+        return np.zeros(n)
     if kind == "model":
-        return model_residual_series_mgal(spec)
+        return model_residual_series_mgal(spec, n=n)
     raise ValueError(f"residuals: 'real', 'none' or 'model', not {kind!r}")
 
 
@@ -312,7 +314,7 @@ def bench_one(case_name: str, seed: int, profile: ShipProfile, cut_s: float, min
     if spec is not None:
         cfg = replace(cfg, ins=spec)
     run = simulate_marine(case.truth_map, traj, rng, ins_model=ins_model, gnss=GnssModel(cut_s=cut_s),
-                          residuals_mgal=_residuals(residuals, cfg.map_error))
+                          residuals_mgal=_residuals(residuals, cfg.map_error, residual_series_mgal().size))
     tr = run_filter(case.filter_map, run, cfg, seed)
     sel = tr.t_s >= cut_s
     i = tr.index[sel]

@@ -2,13 +2,15 @@
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 .venv/bin/python -m replay.gravity.marine_ablation --workers 2
 
-The same held-out seeds, tracks, INS errors and white gravimeter noise as ``replay.gravity.marine`` (the residual
-block's start is drawn in every case, so every other draw is unchanged), in four cases:
+The same held-out seeds, tracks, INS errors and white gravimeter noise as ``replay.gravity.marine`` (every case
+draws its misfit block's start from a series as long as the real one, so every other draw is unchanged), in four
+cases:
 
 * the benchmark itself: real ship-minus-satellite residuals in the readings, the filter's default misfit model;
 * a misfit drawn from that model itself (Gauss-Markov 5.3 mGal over 28 km plus 0.3 mGal white, one fixed seeded
-  series, blocks drawn as from the real one): the filter then meets exactly the misfit it assumes, so this row is
-  what the model's information allows, and its gap to the first row what the real series' departures from it cost;
+  series as long as the real one, blocks drawn as from it): the filter then meets exactly the misfit it assumes, so
+  this row is what the model's information allows, and its gap to the first row what the real series' departures
+  from it cost;
 * no residuals in the readings, the same filter (it still allows a 5.3 mGal misfit wandering over 28 km);
 * no residuals, the filter told so (0.3 mGal misfit, 0.1 mGal short-scale part, no learning): what the filter's
   machinery (particles, linear INS-error states, Eotvos coupling, 2' map) reaches when the map is the truth.

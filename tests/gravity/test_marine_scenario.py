@@ -123,7 +123,7 @@ def test_misfit_free_readings_keep_every_other_draw():
         traj = draw_track(case, ShipProfile(hours=0.5), rng, margin_m=30_000.0)
         return simulate_marine(case.truth_map, traj, rng, gnss=GnssModel(cut_s=600.0), residuals_mgal=res)
 
-    a, b = run(RES), run(np.zeros(2))
+    a, b = run(RES), run(np.zeros(RES.size))  # (the same length: the block's start takes the same draw)
     for name in ("true_ne_m", "nav_ne_m", "nav_vel_ne_mps", "map_true_mgal"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
     lat = np.full(a.t_s.size, 45.0)
@@ -163,6 +163,7 @@ def test_model_residual_series_has_the_model_statistics():
         d = np.mean((x[k:] - x[:-k]) ** 2)
         model = 2 * 25.0 * (1 - np.exp(-k * 500.0 / 10_000.0)) + 2 * 0.25
         assert d == pytest.approx(model, rel=0.1)
-    assert _residuals("real", spec) is None and not _residuals("none", spec).any()
+    assert _residuals("real", spec, 100) is None and _residuals("none", spec, 100).shape == (100,)
+    assert not _residuals("none", spec, 100).any() and _residuals("model", spec, 100).shape == (100,)
     with pytest.raises(ValueError):
-        _residuals("gaussian", spec)
+        _residuals("gaussian", spec, 100)
