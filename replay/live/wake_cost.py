@@ -1,0 +1,164 @@
+"""What an event costs the navigator live, against back to back in a replay: the same events, the same work.
+
+    .venv/bin/python -m replay.live.wake_cost [--events 1500] [--repeat 3] [--no-write]
+
+The live process at 50 Hz IMU spends ~4 % of a core (replay/results/live.md) while a replay of the same stream
+spends ~1 % of a core per second of flight (replay.live.throughput): this isolates why. The simulated vehicle's
+circuit flight (``companion sim --profile circuit``: 50 Hz IMU, 10 Hz GNSS and ATTITUDE, what the live link
+requests) goes through a fresh :class:`~companion.nav.Navigator` in one process under four pacings, and the
+navigator's own thread CPU time (``time.thread_time`` around each ``process`` call, nothing else) is divided by
+the events:
+
+* back to back -- as ``companion replay`` does;
+* real time, sleeping -- each event at its vehicle time, the thread asleep in between (as the live loop waits on
+  its link);
+* real time, spinning -- the same spacing, the core kept busy by a spin loop instead of sleeping (no idle state);
+* real time, 10 Hz batches -- asleep, woken every 100 ms of vehicle time for the events due (the fewest wake-ups a
+  10 Hz output allows).
+
+Every pacing gives the navigator the same events in the same order: its outputs are checked equal, so only when
+the work runs differs. The first ``--warmup`` events run back to back before the timing (filter initialised, KNN
+database started).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import math
+import os
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+from companion.events import ImuSample
+from companion.nav import Navigator
+from replay.harness.results import md_table, publish, results_file
+
+PACINGS = ("back to back", "real time, sleeping", "real time, spinning", "real time, 10 Hz batches")
+BATCH_PERIOD_S = 0.1
+
+
+def circuit_events() -> list:
+    """The live benchmark's flight (replay.live.latency: circuit profile, 10 Hz GNSS, 50 Hz IMU, 10 Hz ATTITUDE,
+    drone sensors, the sample seed) as the link would deliver it: the first IMU only (the one requested)."""
+    from companion.sim.flight import SAMPLE_SEED, SENSOR_SETS, SimConfig, simulate_flight
+    from companion.sim.make_sample import flight_tlog_bytes
+    from companion.sim.vehicle_cli import circuit_profile
+    from companion.sources import FileSource
+
+    flight = simulate_flight(circuit_profile(), SAMPLE_SEED,
+                             SimConfig(gnss_rate_hz=10.0, imu_rate_hz=50.0, attitude_rate_hz=10.0,
+                                       **SENSOR_SETS["drone"]))
+    data, _ = flight_tlog_bytes(flight)
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "circuit.tlog"
+        path.write_bytes(data)
+
+        async def read() -> list:
+            return [ev async for ev in FileSource(path)]
+
+        events = asyncio.run(read())
+    return [e for e in events if not (isinstance(e, ImuSample) and e.imu_index != 0)]
+
+
+def _wait_until(deadline: float, spin: bool) -> None:
+    if spin:
+        while time.perf_counter() < deadline:
+            pass
+    else:
+        left = deadline - time.perf_counter()
+        if left > 0:
+            time.sleep(left)
+
+
+def run_paced(events: list, warmup: int, n: int, pacing: str) -> tuple[float, list]:
+    """(navigator thread CPU s per event, the outputs) for ``events[warmup:warmup + n]`` under ``pacing``."""
+    if pacing not in PACINGS:
+        raise ValueError(f"unknown pacing {pacing!r} (one of {PACINGS})")
+    nav = Navigator(None)
+    outs: list = []
+    for ev in events[:warmup]:
+        outs += nav.process(ev)
+    timed = events[warmup:warmup + n]
+    if not timed:
+        raise ValueError(f"no events to time: {len(events)} events, {warmup} of them warm-up")
+    cpu = 0.0
+    t0_ev, t0 = timed[0].t_s, time.perf_counter()
+    if pacing == "real time, 10 Hz batches":
+        i = 0
+        while i < len(timed):
+            due = t0_ev + (math.floor((timed[i].t_s - t0_ev) / BATCH_PERIOD_S) + 1) * BATCH_PERIOD_S  # batch's end
+            k = i + 1  # at least the event that opened the batch, whatever the rounding
+            while k < len(timed) and timed[k].t_s < due:
+                k += 1
+            _wait_until(t0 + due - t0_ev, spin=False)
+            c0 = time.thread_time()
+            for ev in timed[i:k]:
+                outs += nav.process(ev)
+            cpu += time.thread_time() - c0
+            i = k
+    else:
+        paced, spin = pacing != "back to back", pacing == "real time, spinning"
+        for ev in timed:
+            if paced:
+                _wait_until(t0 + ev.t_s - t0_ev, spin)
+            c0 = time.thread_time()
+            outs += nav.process(ev)
+            cpu += time.thread_time() - c0
+    return cpu / len(timed), outs
+
+
+def wake_cost_table(events: list, warmup: int, n: int, repeat: int) -> tuple[str, dict[str, float]]:
+    """Median per-event CPU of each pacing over ``repeat`` rounds (pacings in turn within a round)."""
+    per: dict[str, list[float]] = {p: [] for p in PACINGS}
+    reference = None
+    for _ in range(repeat):
+        for p in PACINGS:
+            us, outs = run_paced(events, warmup, n, p)
+            if reference is None:
+                reference = outs
+            elif outs != reference:
+                raise AssertionError(f"pacing {p!r} changed the navigator's outputs")
+            per[p].append(us)
+    med = {p: statistics.median(v) for p, v in per.items()}
+    base = med["back to back"]
+    rows = [[p, n, f"{1e6 * med[p]:.0f}", ", ".join(f"{1e6 * x:.0f}" for x in per[p]), f"{med[p] / base:.1f}"]
+            for p in PACINGS]
+    return md_table(["pacing", "events", "us per event (median)", "each round", "x back to back"], rows), med
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--events", type=int, default=1500, help="events timed per pacing (default 1500, ~20 s of flight)")
+    ap.add_argument("--warmup", type=int, default=2000, help="events run back to back first (default 2000)")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--no-write", action="store_true", help="print only; do not write replay/results/live.md")
+    args = ap.parse_args(argv)
+    if args.events < 1 or args.repeat < 1 or args.warmup < 0:
+        ap.error("--events and --repeat must be >= 1, --warmup >= 0")
+    events = circuit_events()
+    load0 = os.getloadavg()[0]
+    table, med = wake_cost_table(events, args.warmup, args.events, args.repeat)
+    load1 = os.getloadavg()[0]
+    flight_s = events[args.warmup + min(args.events, len(events) - args.warmup) - 1].t_s - events[args.warmup].t_s
+    rate = args.events / flight_s if flight_s > 0 else float("nan")
+    text = (
+        "## What an event costs the navigator live (`replay.live.wake_cost`)\n\n"
+        f"    .venv/bin/python -m replay.live.wake_cost --events {args.events} --repeat {args.repeat}\n\n"
+        f"Measured {time.strftime('%Y-%m-%d')}, {os.cpu_count()} cores, 1-min load average {load0:.1f} at start, "
+        f"{load1:.1f} at end. The circuit flight of the live benchmark ({rate:.0f} events per second of flight), "
+        "a fresh navigator per pacing, its thread CPU time per event; the outputs of every pacing are equal.\n\n"
+        + table + "\n\n"
+        f"At the live rate the navigator alone would take {100 * med['real time, sleeping'] * rate:.1f} % of a core "
+        f"paced and asleep between events, {100 * med['back to back'] * rate:.1f} % if each event cost what it costs "
+        "back to back."
+    )
+    publish(text, results_file("live"), "wake-cost", "Live companion: GPS_INPUT latency, CPU, memory",
+            write=not args.no_write)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
