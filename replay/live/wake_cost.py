@@ -2,8 +2,8 @@
 
     .venv/bin/python -m replay.live.wake_cost [--events 1500] [--repeat 3] [--no-write]
 
-The live process at 50 Hz IMU spends ~4 % of a core (replay/results/live.md) while a replay of the same stream
-spends ~1 % of a core per second of flight (replay.live.throughput): this isolates why. The simulated vehicle's
+The live process at 50 Hz IMU spends 3.5-4.6 % of a core from run to run (replay/results/live.md), several times
+what the navigator's replay speed suggests: this isolates why. The simulated vehicle's
 circuit flight (``companion sim --profile circuit``: 50 Hz IMU, 10 Hz GNSS and ATTITUDE, what the live link
 requests) goes through a fresh :class:`~companion.nav.Navigator` in one process under four pacings, and the
 navigator's own thread CPU time (``time.thread_time`` around each ``process`` call, nothing else) is divided by
