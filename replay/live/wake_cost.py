@@ -142,8 +142,9 @@ def main(argv: list[str] | None = None) -> int:
     load0 = os.getloadavg()[0]
     table, med = wake_cost_table(events, args.warmup, args.events, args.repeat)
     load1 = os.getloadavg()[0]
-    flight_s = events[args.warmup + min(args.events, len(events) - args.warmup) - 1].t_s - events[args.warmup].t_s
-    rate = args.events / flight_s if flight_s > 0 else float("nan")
+    timed = events[args.warmup:args.warmup + args.events]  # (run_paced refused an empty slice)
+    flight_s = timed[-1].t_s - timed[0].t_s
+    rate = len(timed) / flight_s if flight_s > 0 else float("nan")
     text = (
         "## What an event costs the navigator live (`replay.live.wake_cost`)\n\n"
         f"    .venv/bin/python -m replay.live.wake_cost --events {args.events} --repeat {args.repeat}\n\n"

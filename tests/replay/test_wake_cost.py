@@ -23,7 +23,7 @@ def test_every_pacing_gives_the_same_outputs(events):
 
 def test_batches_end_on_the_grid_whatever_the_rounding(events):
     # event times on the 0.1 s grid (0.02 s IMU steps sum with rounding): each batch must still move on
-    grid = [e for e in events[1440:1500]]
+    grid = events[1440:1500]
     _, outs = run_paced(grid, 0, len(grid), "real time, 10 Hz batches")
     _, ref = run_paced(grid, 0, len(grid), "back to back")
     assert outs == ref
