@@ -10,6 +10,8 @@ navigator's own thread CPU time (``time.thread_time`` around each ``process`` ca
 the events:
 
 * back to back -- as ``companion replay`` does;
+* back to back, 8 MB touched between events -- one byte a page written in a buffer larger than the caches, no pause
+  (what evicting the data caches alone costs);
 * real time, sleeping -- each event at its vehicle time, the thread asleep in between (as the live loop waits on
   its link);
 * real time, spinning -- the same spacing, the core kept busy by a spin loop instead of sleeping (no idle state);
@@ -36,7 +38,9 @@ from companion.events import ImuSample
 from companion.nav import Navigator
 from replay.harness.results import md_table, publish, results_file
 
-PACINGS = ("back to back", "real time, sleeping", "real time, spinning", "real time, 10 Hz batches")
+PACINGS = ("back to back", "back to back, 8 MB touched between events", "real time, sleeping", "real time, spinning",
+           "real time, 10 Hz batches")
+TOUCH_BYTES = 8 << 20  # more than the last-level cache of this machine and of a Raspberry Pi
 BATCH_PERIOD_S = 0.1
 
 
@@ -100,10 +104,14 @@ def run_paced(events: list, warmup: int, n: int, pacing: str) -> tuple[float, li
             cpu += time.thread_time() - c0
             i = k
     else:
-        paced, spin = pacing != "back to back", pacing == "real time, spinning"
+        paced, spin = pacing.startswith("real time"), pacing == "real time, spinning"
+        junk = bytearray(TOUCH_BYTES) if pacing == "back to back, 8 MB touched between events" else None
         for ev in timed:
             if paced:
                 _wait_until(t0 + ev.t_s - t0_ev, spin)
+            elif junk is not None:
+                for i in range(0, TOUCH_BYTES, 4096):
+                    junk[i] ^= 1  # a write to every page
             c0 = time.thread_time()
             outs += nav.process(ev)
             cpu += time.thread_time() - c0
