@@ -88,7 +88,7 @@ def run_paced(events: list, warmup: int, n: int, pacing: str) -> tuple[float, li
     timed = events[warmup:warmup + n]
     if not timed:
         raise ValueError(f"no events to time: {len(events)} events, {warmup} of them warm-up")
-    cpu = 0.0
+    cpu_s = 0.0
     t0_ev, t0 = timed[0].t_s, time.perf_counter()
     if pacing == "real time, 10 Hz batches":
         i = 0
@@ -101,7 +101,7 @@ def run_paced(events: list, warmup: int, n: int, pacing: str) -> tuple[float, li
             c0 = time.thread_time()
             for ev in timed[i:k]:
                 outs += nav.process(ev)
-            cpu += time.thread_time() - c0
+            cpu_s += time.thread_time() - c0
             i = k
     else:
         paced, spin = pacing.startswith("real time"), pacing == "real time, spinning"
@@ -110,12 +110,12 @@ def run_paced(events: list, warmup: int, n: int, pacing: str) -> tuple[float, li
             if paced:
                 _wait_until(t0 + ev.t_s - t0_ev, spin)
             elif junk is not None:
-                for i in range(0, TOUCH_BYTES, 4096):
-                    junk[i] ^= 1  # a write to every page
+                for page in range(0, TOUCH_BYTES, 4096):
+                    junk[page] ^= 1  # a write to every page
             c0 = time.thread_time()
             outs += nav.process(ev)
-            cpu += time.thread_time() - c0
-    return cpu / len(timed), outs
+            cpu_s += time.thread_time() - c0
+    return cpu_s / len(timed), outs
 
 
 def wake_cost_table(events: list, warmup: int, n: int, repeat: int) -> tuple[str, dict[str, float]]:
@@ -124,12 +124,12 @@ def wake_cost_table(events: list, warmup: int, n: int, repeat: int) -> tuple[str
     reference = None
     for _ in range(repeat):
         for p in PACINGS:
-            us, outs = run_paced(events, warmup, n, p)
+            cpu_s_per_event, outs = run_paced(events, warmup, n, p)
             if reference is None:
                 reference = outs
             elif outs != reference:
                 raise AssertionError(f"pacing {p!r} changed the navigator's outputs")
-            per[p].append(us)
+            per[p].append(cpu_s_per_event)
     med = {p: statistics.median(v) for p, v in per.items()}
     base = med["back to back"]
     rows = [[p, n, f"{1e6 * med[p]:.0f}", ", ".join(f"{1e6 * x:.0f}" for x in per[p]), f"{med[p] / base:.1f}"]
