@@ -5,7 +5,7 @@
 The live process at 50 Hz IMU spends 3.5-4.6 % of a core from run to run (replay/results/live.md), several times
 what the navigator's replay speed suggests: this isolates why. The simulated vehicle's
 circuit flight (``companion sim --profile circuit``: 50 Hz IMU, 10 Hz GNSS and ATTITUDE, what the live link
-requests) goes through a fresh :class:`~companion.nav.Navigator` in one process under four pacings, and the
+requests) goes through a fresh :class:`~companion.nav.Navigator` in one process under five pacings, and the
 navigator's own thread CPU time (``time.thread_time`` around each ``process`` call, nothing else) is divided by
 the events:
 
@@ -18,6 +18,9 @@ the events:
 * real time, 10 Hz batches -- asleep, woken every 100 ms of vehicle time for the events due (the fewest wake-ups a
   10 Hz output allows).
 
+The link's reader thread is timed the same way (back to back, asleep, spinning): pymavlink's parser and the
+decoder on the flight's frames, one frame a read, as ``companion.mavlink.link`` does.
+
 Every pacing gives the navigator the same events in the same order: its outputs are checked equal, so only when
 the work runs differs. The first ``--warmup`` events run back to back before the timing (filter initialised, KNN
 database started).
@@ -27,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import functools
 import math
 import os
 import statistics
@@ -42,29 +46,58 @@ PACINGS = ("back to back", "back to back, 8 MB touched between events", "real ti
            "real time, 10 Hz batches")
 TOUCH_BYTES = 8 << 20  # more than the last-level cache of this machine and of a Raspberry Pi
 BATCH_PERIOD_S = 0.1
+#: the pacings of the link's reader work (it reads each frame as it comes: no batches)
+LINK_PACINGS = ("back to back", "real time, sleeping", "real time, spinning")
 
 
-def circuit_events() -> list:
+@functools.lru_cache(maxsize=1)
+def circuit_tlog() -> bytes:
     """The live benchmark's flight (replay.live.latency: circuit profile, 10 Hz GNSS, 50 Hz IMU, 10 Hz ATTITUDE,
-    drone sensors, the sample seed) as the link would deliver it: the first IMU only (the one requested)."""
+    drone sensors, the sample seed) as a telemetry log."""
     from companion.sim.flight import SAMPLE_SEED, SENSOR_SETS, SimConfig, simulate_flight
     from companion.sim.make_sample import flight_tlog_bytes
     from companion.sim.vehicle_cli import circuit_profile
-    from companion.sources import FileSource
 
     flight = simulate_flight(circuit_profile(), SAMPLE_SEED,
                              SimConfig(gnss_rate_hz=10.0, imu_rate_hz=50.0, attitude_rate_hz=10.0,
                                        **SENSOR_SETS["drone"]))
-    data, _ = flight_tlog_bytes(flight)
+    return flight_tlog_bytes(flight)[0]
+
+
+def circuit_events() -> list:
+    """:func:`circuit_tlog` as the link would deliver it: events, the first IMU only (the one requested)."""
+    from companion.sources import FileSource
+
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "circuit.tlog"
-        path.write_bytes(data)
+        path.write_bytes(circuit_tlog())
 
         async def read() -> list:
             return [ev async for ev in FileSource(path)]
 
         events = asyncio.run(read())
     return [e for e in events if not (isinstance(e, ImuSample) and e.imu_index != 0)]
+
+
+def circuit_frames() -> list[tuple[float, bytes]]:
+    """:func:`circuit_tlog` as the link would receive it: (receive time s, MAVLink frame), without the second IMU's
+    SCALED_IMU2 (not requested live). A frame's length comes from its header (v2: 10 + payload + 2 CRC + 13 when
+    signed; v1: 6 + payload + 2)."""
+    from companion.mavlink.dialect import mavlink as mavlink2
+
+    data, out, i = circuit_tlog(), [], 0
+    while i + 8 < len(data):
+        t_us, j = int.from_bytes(data[i:i + 8], "big"), i + 8
+        if data[j] == 0xFD:
+            n, msgid = 10 + data[j + 1] + 2 + (13 if data[j + 2] & 1 else 0), int.from_bytes(data[j + 7:j + 10], "little")
+        elif data[j] == 0xFE:
+            n, msgid = 6 + data[j + 1] + 2, data[j + 5]
+        else:
+            raise ValueError(f"no MAVLink frame at byte {j} of the generated tlog")
+        if msgid != mavlink2.MAVLINK_MSG_ID_SCALED_IMU2:
+            out.append((t_us * 1e-6, data[j:j + n]))
+        i = j + n
+    return out
 
 
 def _wait_until(deadline: float, spin: bool) -> None:
@@ -118,6 +151,55 @@ def run_paced(events: list, warmup: int, n: int, pacing: str) -> tuple[float, li
     return cpu_s / len(timed), outs
 
 
+def run_link_paced(frames: list[tuple[float, bytes]], warmup: int, n: int, pacing: str) -> tuple[float, list]:
+    """(thread CPU s per frame, the events) of the link's reader work -- pymavlink's parser and the decoder, as
+    companion.mavlink.link does for each read -- for ``frames[warmup:warmup + n]``, one frame a read."""
+    from companion.mavlink.decode import MavlinkDecoder
+    from companion.mavlink.dialect import mavlink as mavlink2
+
+    if pacing not in LINK_PACINGS:
+        raise ValueError(f"unknown pacing {pacing!r} (one of {LINK_PACINGS})")
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER)
+    mav.robust_parsing = True
+    decoder = MavlinkDecoder()
+    events: list = []
+    for t_s, frame in frames[:warmup]:
+        for msg in mav.parse_buffer(frame) or []:
+            events += decoder.decode(msg, t_s)
+    timed = frames[warmup:warmup + n]
+    if not timed:
+        raise ValueError(f"no frames to time: {len(frames)} frames, {warmup} of them warm-up")
+    cpu_s = 0.0
+    t0_rx, t0 = timed[0][0], time.perf_counter()
+    paced, spin = pacing.startswith("real time"), pacing == "real time, spinning"
+    for t_s, frame in timed:
+        if paced:
+            _wait_until(t0 + t_s - t0_rx, spin)
+        c0 = time.thread_time()
+        for msg in mav.parse_buffer(frame) or []:
+            events += decoder.decode(msg, t_s)
+        cpu_s += time.thread_time() - c0
+    return cpu_s / len(timed), events
+
+
+def link_cost_table(frames: list[tuple[float, bytes]], warmup: int, n: int, repeat: int) -> tuple[str, dict[str, float]]:
+    """Median per-frame CPU of the reader's parse and decode under each of :data:`LINK_PACINGS`."""
+    per: dict[str, list[float]] = {p: [] for p in LINK_PACINGS}
+    reference = None
+    for _ in range(repeat):
+        for p in LINK_PACINGS:
+            cpu_s_per_frame, events = run_link_paced(frames, warmup, n, p)
+            if reference is None:
+                reference = events
+            elif events != reference:
+                raise AssertionError(f"pacing {p!r} changed the decoded events")
+            per[p].append(cpu_s_per_frame)
+    med = {p: statistics.median(v) for p, v in per.items()}
+    rows = [[p, n, f"{1e6 * med[p]:.0f}", ", ".join(f"{1e6 * x:.0f}" for x in per[p]),
+             f"{med[p] / med['back to back']:.1f}"] for p in LINK_PACINGS]
+    return md_table(["pacing", "frames", "us per frame (median)", "each round", "x back to back"], rows), med
+
+
 def wake_cost_table(events: list, warmup: int, n: int, repeat: int) -> tuple[str, dict[str, float]]:
     """Median per-event CPU of each pacing over ``repeat`` rounds (pacings in turn within a round)."""
     per: dict[str, list[float]] = {p: [] for p in PACINGS}
@@ -149,6 +231,11 @@ def main(argv: list[str] | None = None) -> int:
     events = circuit_events()
     load0 = os.getloadavg()[0]
     table, med = wake_cost_table(events, args.warmup, args.events, args.repeat)
+    frames = circuit_frames()
+    link_table, link_med = link_cost_table(frames, args.warmup, args.events, args.repeat)
+    timed_frames = frames[args.warmup:args.warmup + args.events]
+    frame_span_s = timed_frames[-1][0] - timed_frames[0][0]
+    frame_rate = len(timed_frames) / frame_span_s if frame_span_s > 0 else float("nan")
     load1 = os.getloadavg()[0]
     timed = events[args.warmup:args.warmup + args.events]  # (run_paced refused an empty slice)
     flight_s = timed[-1].t_s - timed[0].t_s
@@ -162,7 +249,12 @@ def main(argv: list[str] | None = None) -> int:
         + table + "\n\n"
         f"At the live rate the navigator alone would take {100 * med['real time, sleeping'] * rate:.1f} % of a core "
         f"paced and asleep between events, {100 * med['back to back'] * rate:.1f} % if each event cost what it costs "
-        "back to back."
+        "back to back.\n\n"
+        "The link's reader thread (`companion.mavlink.link`): pymavlink's parser and the decoder on the same flight's "
+        "frames as they come, one frame a read, the outputs checked equal:\n\n" + link_table + "\n\n"
+        f"At the live rate ({frame_rate:.0f} frames a second) that is "
+        f"{100 * link_med['real time, sleeping'] * frame_rate:.1f} % of a core paced, "
+        f"{100 * link_med['back to back'] * frame_rate:.1f} % at the back-to-back cost."
     )
     publish(text, results_file("live"), "wake-cost", "Live companion: GPS_INPUT latency, CPU, memory",
             write=not args.no_write)

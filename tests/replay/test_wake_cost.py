@@ -34,3 +34,33 @@ def test_bad_arguments(events):
         run_paced(events, 0, 10, "as fast as it can")
     with pytest.raises(ValueError, match="no events"):
         run_paced(events[:5], 5, 10, "back to back")
+
+
+def test_frames_are_the_tlog_frames_without_the_second_imu():
+    from pymavlink import mavutil
+
+    from replay.live.wake_cost import circuit_frames
+
+    frames = circuit_frames()
+    mav = mavutil.mavlink.MAVLink(None)
+    mav.robust_parsing = True
+    types = [m.get_type() for _, f in frames for m in (mav.parse_buffer(f) or [])]
+    assert len(types) == len(frames)  # one whole, valid frame each
+    assert "BAD_DATA" not in types and "SCALED_IMU2" not in types
+    assert {"RAW_IMU", "GPS_RAW_INT", "ATTITUDE"} <= set(types)
+    times = [t for t, _ in frames]
+    assert times == sorted(times)
+
+
+def test_the_link_work_is_the_same_under_every_pacing():
+    from replay.live.wake_cost import LINK_PACINGS, circuit_frames, run_link_paced
+
+    frames = circuit_frames()
+    runs = {p: run_link_paced(frames, 1440, 36, p) for p in LINK_PACINGS}
+    ref = runs["back to back"][1]
+    assert len(ref) >= 1440  # the decoder made events of the frames
+    for p, (cpu_s_per_frame, events) in runs.items():
+        assert cpu_s_per_frame > 0, p
+        assert events == ref, p
+    with pytest.raises(ValueError, match="unknown pacing"):
+        run_link_paced(frames, 0, 10, "real time, 10 Hz batches")
