@@ -182,41 +182,24 @@ def run_link_paced(frames: list[tuple[float, bytes]], warmup: int, n: int, pacin
     return cpu_s / len(timed), events
 
 
-def link_cost_table(frames: list[tuple[float, bytes]], warmup: int, n: int, repeat: int) -> tuple[str, dict[str, float]]:
-    """Median per-frame CPU of the reader's parse and decode under each of :data:`LINK_PACINGS`."""
-    per: dict[str, list[float]] = {p: [] for p in LINK_PACINGS}
+def pacing_table(run, inputs: list, warmup: int, n: int, repeat: int, pacings: tuple[str, ...],
+                 unit: str) -> tuple[str, dict[str, float]]:
+    """Median CPU per input of ``run(inputs, warmup, n, pacing)`` -> (CPU s per input, outputs) under each pacing,
+    ``repeat`` rounds with the pacings in turn; every run's outputs must equal the first's (same work)."""
+    per: dict[str, list[float]] = {p: [] for p in pacings}
     reference = None
     for _ in range(repeat):
-        for p in LINK_PACINGS:
-            cpu_s_per_frame, events = run_link_paced(frames, warmup, n, p)
-            if reference is None:
-                reference = events
-            elif events != reference:
-                raise AssertionError(f"pacing {p!r} changed the decoded events")
-            per[p].append(cpu_s_per_frame)
-    med = {p: statistics.median(v) for p, v in per.items()}
-    rows = [[p, n, f"{1e6 * med[p]:.0f}", ", ".join(f"{1e6 * x:.0f}" for x in per[p]),
-             f"{med[p] / med['back to back']:.1f}"] for p in LINK_PACINGS]
-    return md_table(["pacing", "frames", "us per frame (median)", "each round", "x back to back"], rows), med
-
-
-def wake_cost_table(events: list, warmup: int, n: int, repeat: int) -> tuple[str, dict[str, float]]:
-    """Median per-event CPU of each pacing over ``repeat`` rounds (pacings in turn within a round)."""
-    per: dict[str, list[float]] = {p: [] for p in PACINGS}
-    reference = None
-    for _ in range(repeat):
-        for p in PACINGS:
-            cpu_s_per_event, outs = run_paced(events, warmup, n, p)
+        for p in pacings:
+            cpu_s_per_input, outs = run(inputs, warmup, n, p)
             if reference is None:
                 reference = outs
             elif outs != reference:
-                raise AssertionError(f"pacing {p!r} changed the navigator's outputs")
-            per[p].append(cpu_s_per_event)
+                raise AssertionError(f"pacing {p!r} changed the outputs")
+            per[p].append(cpu_s_per_input)
     med = {p: statistics.median(v) for p, v in per.items()}
-    base = med["back to back"]
-    rows = [[p, n, f"{1e6 * med[p]:.0f}", ", ".join(f"{1e6 * x:.0f}" for x in per[p]), f"{med[p] / base:.1f}"]
-            for p in PACINGS]
-    return md_table(["pacing", "events", "us per event (median)", "each round", "x back to back"], rows), med
+    rows = [[p, n, f"{1e6 * med[p]:.0f}", ", ".join(f"{1e6 * x:.0f}" for x in per[p]),
+             f"{med[p] / med['back to back']:.1f}"] for p in pacings]
+    return md_table(["pacing", f"{unit}s", f"us per {unit} (median)", "each round", "x back to back"], rows), med
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -230,9 +213,10 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--events and --repeat must be >= 1, --warmup >= 0")
     events = circuit_events()
     load0 = os.getloadavg()[0]
-    table, med = wake_cost_table(events, args.warmup, args.events, args.repeat)
+    table, med = pacing_table(run_paced, events, args.warmup, args.events, args.repeat, PACINGS, "event")
     frames = circuit_frames()
-    link_table, link_med = link_cost_table(frames, args.warmup, args.events, args.repeat)
+    link_table, link_med = pacing_table(run_link_paced, frames, args.warmup, args.events, args.repeat, LINK_PACINGS,
+                                        "frame")
     timed_frames = frames[args.warmup:args.warmup + args.events]
     frame_span_s = timed_frames[-1][0] - timed_frames[0][0]
     frame_rate = len(timed_frames) / frame_span_s if frame_span_s > 0 else float("nan")

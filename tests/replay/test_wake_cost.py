@@ -64,3 +64,20 @@ def test_the_link_work_is_the_same_under_every_pacing():
         assert events == ref, p
     with pytest.raises(ValueError, match="unknown pacing"):
         run_link_paced(frames, 0, 10, "real time, 10 Hz batches")
+
+
+def test_pacing_table_refuses_runs_that_did_different_work():
+    from replay.live.wake_cost import pacing_table
+
+    def same(inputs, warmup, n, pacing):
+        return 2e-6 if pacing == "back to back" else 6e-6, list(inputs[warmup:warmup + n])
+
+    table, med = pacing_table(same, list(range(10)), 2, 5, 2, ("back to back", "paced"), "frame")
+    assert med == {"back to back": 2e-6, "paced": 6e-6}
+    assert "| paced | 5 | 6 | 6, 6 | 3.0 |" in table
+
+    def different(inputs, warmup, n, pacing):
+        return 1e-6, [pacing]
+
+    with pytest.raises(AssertionError, match="changed the outputs"):
+        pacing_table(different, list(range(10)), 0, 5, 1, ("back to back", "paced"), "frame")
