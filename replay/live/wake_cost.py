@@ -29,7 +29,6 @@ database started).
 from __future__ import annotations
 
 import argparse
-import asyncio
 import functools
 import math
 import os
@@ -51,53 +50,37 @@ LINK_PACINGS = ("back to back", "real time, sleeping", "real time, spinning")
 
 
 @functools.lru_cache(maxsize=1)
-def circuit_tlog() -> bytes:
+def circuit_stream() -> tuple[tuple[str, int, bytes], ...]:
     """The live benchmark's flight (replay.live.latency: circuit profile, 10 Hz GNSS, 50 Hz IMU, 10 Hz ATTITUDE,
-    drone sensors, the sample seed) as a telemetry log."""
+    drone sensors, the sample seed) as the simulated vehicle sends it: (message type, receive time us, MAVLink frame)."""
     from companion.sim.flight import SAMPLE_SEED, SENSOR_SETS, SimConfig, simulate_flight
-    from companion.sim.make_sample import flight_tlog_bytes
+    from companion.sim.mavlink_out import pack_stream, telemetry_messages
     from companion.sim.vehicle_cli import circuit_profile
 
     flight = simulate_flight(circuit_profile(), SAMPLE_SEED,
                              SimConfig(gnss_rate_hz=10.0, imu_rate_hz=50.0, attitude_rate_hz=10.0,
                                        **SENSOR_SETS["drone"]))
-    return flight_tlog_bytes(flight)[0]
+    msgs = telemetry_messages(flight)
+    return tuple((o.msg.get_type(), t_us, frame)
+                 for o, (t_us, frame) in zip(msgs, pack_stream(msgs, flight.config.boot_epoch_us), strict=True))
 
 
 def circuit_events() -> list:
-    """:func:`circuit_tlog` as the link would deliver it: events, the first IMU only (the one requested)."""
-    from companion.sources import FileSource
+    """:func:`circuit_stream` as the link would deliver it: events, the first IMU only (the one requested)."""
+    from companion.sim.tlog import tlog_bytes
+    from companion.sources.files import read_events
 
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "circuit.tlog"
-        path.write_bytes(circuit_tlog())
-
-        async def read() -> list:
-            return [ev async for ev in FileSource(path)]
-
-        events = asyncio.run(read())
+        path.write_bytes(tlog_bytes((t_us, frame) for _, t_us, frame in circuit_stream()))
+        events = read_events(path)
     return [e for e in events if not (isinstance(e, ImuSample) and e.imu_index != 0)]
 
 
 def circuit_frames() -> list[tuple[float, bytes]]:
-    """:func:`circuit_tlog` as the link would receive it: (receive time s, MAVLink frame), without the second IMU's
-    SCALED_IMU2 (not requested live). A frame's length comes from its header (v2: 10 + payload + 2 CRC + 13 when
-    signed; v1: 6 + payload + 2)."""
-    from companion.mavlink.dialect import mavlink as mavlink2
-
-    data, out, i = circuit_tlog(), [], 0
-    while i + 8 < len(data):
-        t_us, j = int.from_bytes(data[i:i + 8], "big"), i + 8
-        if data[j] == 0xFD:
-            n, msgid = 10 + data[j + 1] + 2 + (13 if data[j + 2] & 1 else 0), int.from_bytes(data[j + 7:j + 10], "little")
-        elif data[j] == 0xFE:
-            n, msgid = 6 + data[j + 1] + 2, data[j + 5]
-        else:
-            raise ValueError(f"no MAVLink frame at byte {j} of the generated tlog")
-        if msgid != mavlink2.MAVLINK_MSG_ID_SCALED_IMU2:
-            out.append((t_us * 1e-6, data[j:j + n]))
-        i = j + n
-    return out
+    """:func:`circuit_stream` as the link would receive it: (receive time s, MAVLink frame), without the second IMU's
+    SCALED_IMU2 (not requested live)."""
+    return [(t_us * 1e-6, frame) for mtype, t_us, frame in circuit_stream() if mtype != "SCALED_IMU2"]
 
 
 def _wait_until(deadline: float, spin: bool) -> None:
