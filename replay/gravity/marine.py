@@ -562,7 +562,7 @@ def main(argv=None) -> int:
         return 0
     write_section(RESULTS_MD, "marine", body, "Gravity-aided navigation at ship speed: the sequential filter")
     error_plot(RESULTS_DIR / "gravity_marine_error.png", plot_groups,
-          f"Sequential gravity filter vs INS alone after the GNSS cut ({a.speed:g} m/s ship; aircraft 150 m/s)")
+               f"Sequential gravity filter vs INS alone after the GNSS cut ({a.speed:g} m/s ship; aircraft 150 m/s)")
     resolution_plot(RESULTS_DIR / "gravity_marine_resolution.png", res_rows)
     return 0
 

@@ -71,7 +71,8 @@ def resolution_plot(path, rows: list[tuple[str, float, dict]]) -> None:
     plt.close(fig)
 
 
-#: (label, cell km, error km, label offset in points) of the papers' results in replay.gravity.marine.PAPERS, for the resolution plot
+#: (label, cell km, error km, label offset in points) of the papers' results in replay.gravity.marine.PAPERS, for
+#: the resolution plot
 PAPER_POINTS = [("Gao T2", 1.85, 0.150, 4), ("Gao T4", 1.85, 0.494, -7), ("Gao T6", 1.85, 0.554, 3),
                 ("Li T3", 0.55, 0.72, 3), ("Li T2", 1.1, 0.92, 3), ("Wu", 3.7, 0.37, 3), ("Liu 30\"", 0.9, 0.048, 3),
                 ("Liu 1'", 1.85, 0.141, -9)]
