@@ -321,6 +321,7 @@ def throughput(log: LogData, cfg: NavigatorConfig) -> tuple[float, float, float,
 
 def main(argv: list[str] | None = None) -> int:
     from replay.gap_filling_plots import example, plot_rmse
+    from replay.gap_filling_spread import spread_tables
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--logs-dir", type=Path, default=SHARED_LOGS)
@@ -381,6 +382,7 @@ def main(argv: list[str] | None = None) -> int:
     # ---- blockages
     pooled: dict[float, dict[str, list[np.ndarray]]] = {}
     per_log: dict[tuple[str, float], dict[str, list[np.ndarray]]] = {}
+    per_window: dict[tuple[str, float], list[dict[str, np.ndarray]]] = {}  # each blockage's errors apart
     modes: dict[str, str] = {}
     n_windows: dict[tuple[str, float], int] = {}
     jobs = [(log, L, k) for L in args.lengths for log in logs for k in range(args.offsets)]
@@ -393,6 +395,12 @@ def main(argv: list[str] | None = None) -> int:
         err, mode = run_case(log, wins, dec, cfg, truth)
         modes[log.name] = mode
         n_windows[(log.name, L)] = n_windows.get((log.name, L), 0) + len(wins)
+        tq = log.fix_t[truth]
+        for a, b in wins:
+            sel = (tq >= a) & (tq < b)
+            if sel.any():
+                per_window.setdefault((log.name, L), []).append(
+                    {m: e[sel] for m, e in err.items() if not m.startswith("_")})
         for m, e in err.items():
             per_log.setdefault((log.name, L), {}).setdefault(m, []).append(e)
             if mode == "ins":
@@ -462,6 +470,7 @@ def main(argv: list[str] | None = None) -> int:
     md += _won_tables(per_log, modes, args.lengths)
     if args.held_out:
         md += _held_out_table(per_log, modes, args.lengths, args.held_out)
+    md += spread_tables(per_window, modes, args.lengths, np.random.default_rng(0))
 
     # ---- stream gaps: every message cut while airborne, both orders at resume, 1 Hz and native GNSS
     if args.stream_gaps:
