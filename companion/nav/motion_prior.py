@@ -40,14 +40,22 @@ the 4 s blockages of ac313 and Erle PXF the prior's error exceeds its variance (
 fix pairs it learnt from). A prequential check of the prior (its variance inflated per lag by the mean NIS of its
 predictions of each new fix, made before that fix was learnt) found it consistent on those pairs and did not help
 (pooled 4 s 1.68 -> 1.66 m, 8 s 3.23 -> 3.30 m, Erle PXF 8 s 2.90 -> 3.88 m); not kept.
+So in INS mode the product starts at ``blend_min_age_s`` (6 s), after the aided INS's own short-age accuracy: chosen
+on ac313 and Erle PXF with log171 held out, from 1.5 / 3 / 4.5 / 6 / 8 / 10 s (replay.gap_filling --offsets 4
+--set motion.min_age_s=X, before the two ages were split): the two tuning logs' 4 s blockage 1.89 / 1.85 / 1.63 /
+1.58 / 1.58 / 1.58 m, 8 s 3.42 / 3.41 / 3.38 / 3.35 / 3.48 / 3.85 m, 15 s 7.15 / 7.15 / 7.14 / 7.13 / 7.15 / 7.28 m;
+held-out log171 at 6 s against 1.5 s: 4 s 0.87 -> 0.85, 8 s 2.71 -> 2.70, 15 s 6.09 -> 6.08, 30 s 19.53 -> 19.53 m.
+Pooled 4 s 1.68 -> 1.42 m (as without the prior), 8 s 3.23 -> 3.18 m; Erle PXF 4 s 1.34 -> 1.03 x the best baseline,
+8 s 1.29 -> 1.30 x. The kinematic mode's selection keeps ``min_age_s``: one
+age of 6 s for both took the tlog's 1 / 4 s ratios 1.04 / 1.23 -> 1.32 / 1.51.
 
 On by default. On the kinematic-mode tlog (GNSS at 1 Hz, --offsets 4) the ratio full filter / best baseline went
 1.14 / 1.31 / 1.17 / 1.01 / 1.00 -> 1.04 / 1.23 / 1.14 / 1.03 / 1.00 at 1 / 4 / 8 / 15 / 30 s; the 4 and 8 s rows are
 dominated by one blockage in which the vehicle leaves a waypoint hover (hold 3.2 m, the filter 4.1 m at 4 s). On
 simulated kinematic flights (1 Hz fixes, 4 and 8 s blockages, not the shared logs): a hover 0.80 -> 0.77 m (hold
 0.82), a 2 m/s track turning every 20 s 0.98 -> 0.92 m, a straight 2 m/s track 0.55 -> 0.56 m. No constant is new:
-``variance_scale`` and ``min_pairs`` are the prior's. Outputs differ only where a fix is >= ``min_age_s`` old and
-only in kinematic mode (the three 50 Hz logs' replays are byte-identical).
+``variance_scale`` and ``min_pairs`` are the prior's. (At the time, outputs differed only where a fix was >= 1.5 s
+old and only in kinematic mode: the three 50 Hz logs' replays were byte-identical.)
 """
 
 from __future__ import annotations
@@ -66,7 +74,9 @@ class MotionPriorConfig:
     max_lag_s: int = 60
     tau_s: float = 120.0  # forgetting time constant of the error statistics
     min_pairs: float = 10.0  # forgotten number of fix pairs a lag needs before its statistics are used
-    min_age_s: float = 1.5  # the prior is applied from this age of the last fix on
+    min_age_s: float = 1.5  # the prior is applied from this age of the last fix on (select, kinematic mode)
+    # ... and the product with the INS filter (predict + blend, INS mode) from this one: see the module doc
+    blend_min_age_s: float = 6.0
     variance_scale: float = 2.0
     consistency_sigma: float = 2.0
     # per-horizon selection (kinematic mode only): mix hold, CV and the filter's own output by the errors each would
@@ -75,9 +85,9 @@ class MotionPriorConfig:
     select: bool = True
 
     def __post_init__(self) -> None:
-        if (self.max_lag_s < 1 or self.tau_s <= 0 or self.min_pairs < 2 or self.min_age_s < 0
+        if (self.max_lag_s < 1 or self.tau_s <= 0 or self.min_pairs < 2 or self.min_age_s < 0 or self.blend_min_age_s < 0
                 or self.variance_scale <= 0 or self.consistency_sigma <= 0):
-            raise ValueError("MotionPriorConfig: need max_lag_s >= 1, tau_s > 0, min_pairs >= 2, min_age_s >= 0, "
+            raise ValueError("MotionPriorConfig: need max_lag_s >= 1, tau_s > 0, min_pairs >= 2, min_age_s >= 0, blend_min_age_s >= 0, "
                              "variance_scale > 0, consistency_sigma > 0")
 
 
@@ -196,18 +206,18 @@ class MotionPrior:
         k = (age / g) ** power
         return tuple(s[g] / w[g] * k for s in sums)
 
-    def _since_last(self, t: float):
+    def _since_last(self, t: float, min_age_s: float):
         """(age, position, velocity, variance) of the last fix at time t; None before any fix or before min_age_s."""
         if self._last is None:
             return None
         t0, p, v, var = self._last
         age = t - t0
-        return None if age < self.config.min_age_s else (age, p, v, var)
+        return None if age < min_age_s else (age, p, v, var)
 
     def predict(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
         """Mean and variance per NED axis of the motion prior at time t, and the INS dead-reckoning error variance
-        learnt for this age (None without it); None if too early or nothing learnt."""
-        last = self._since_last(t)
+        learnt for this age (None without it); None before ``blend_min_age_s`` or with nothing learnt."""
+        last = self._since_last(t, self.config.blend_min_age_s)
         if last is None:
             return None
         age, p, v, var = last
@@ -230,8 +240,8 @@ class MotionPrior:
         hold, constant velocity and the filter's own estimate ``ned``, per axis, with weights >= 0 from the 3 x 3
         second moments of the errors each would have made at this age from this flight's past fixes (the filter's
         by its dead reckoning from the fix, see :meth:`add_fix`); variance that of the mix x ``variance_scale``.
-        None when too early or nothing learnt."""
-        last = self._since_last(t)
+        None before ``min_age_s`` or with nothing learnt."""
+        last = self._since_last(t, self.config.min_age_s)
         if last is None:
             return None
         age, p, v, var = last

@@ -29,7 +29,7 @@ def _loiter(rng, n_s=1200, sigma_v=1.0, tau_s=8.0):
 def test_prior_is_calibrated_on_a_loiter():
     """Predictions made causally from the learnt statistics at ages 5, 15, 30 s: normalised squared error ~1."""
     t, p, v = _loiter(np.random.default_rng(3))
-    mp = MotionPrior(MotionPriorConfig(variance_scale=1.0, tau_s=600.0))
+    mp = MotionPrior(MotionPriorConfig(variance_scale=1.0, tau_s=600.0, blend_min_age_s=1.5))  # 5 s predictions too
     z2 = {5: [], 15: [], 30: []}
     for k in range(len(t)):
         mp.add_fix(t[k], p[k], v[k], (0.01, 0.01, 0.01))
@@ -54,6 +54,21 @@ def test_no_prior_before_min_age_or_without_pairs():
     assert mp.predict(5.0) is None  # one fix: no pair yet
     with pytest.raises(ValueError):
         MotionPriorConfig(min_pairs=0.0)
+    with pytest.raises(ValueError):
+        MotionPriorConfig(blend_min_age_s=-1.0)
+
+
+def test_the_product_with_the_ins_starts_later_than_the_selection():
+    """predict (INS mode's product) answers from blend_min_age_s on, select (kinematic mode) from min_age_s on."""
+    t, p, v = _loiter(np.random.default_rng(4), n_s=200)
+    mp = MotionPrior(MotionPriorConfig(min_age_s=1.5, blend_min_age_s=6.0, min_pairs=2.0))
+    for k in range(len(t)):
+        mp.add_fix(t[k], p[k], v[k], (0.01, 0.01, 0.01), ins=(p[k], v[k], p[k], v[k]), ins_epoch=0)
+    last = t[-1]
+    assert mp.predict(last + 5.9) is None
+    assert mp.predict(last + 6.0) is not None
+    assert mp.select(last + 1.4, p[-1]) is None
+    assert mp.select(last + 2.0, p[-1]) is not None
 
 
 def test_stationary_fixes_start_no_pair():
