@@ -101,7 +101,14 @@ class NavigatorConfig:
     white noise, 1.5 s loses what every sample adds: 7 tests fail (an 8 s blockage's largest error 6.5 m against
     < 3 m, a 90 deg heading offset's realigned yaw error 27 deg against < 20 deg, the simulated gravity chain 8 position
     fixes against >= 10, ...). Which is right depends on how long a given autopilot's error persists, which is not
-    measured online; so every sample is fused (0) until it is.
+    measured online; so every sample is fused (0) until it is. The tilt innovations tell the two apart (autocorrelation
+    at 0.1 / 0.5 / 1 / 3 s lag, every sample fused): ac313 0.91 / 0.69 / 0.43 / 0.03, Erle PXF 0.99 / 0.88 / 0.71 /
+    0.22, log171 0.75 / 0.41 / 0.27 / 0.05, the simulated flights -0.05-0.01 at every lag. But fusing once per their
+    e-folding time, learnt online while GNSS aids, runs away: fused less often, the INS drifts between fusions and the
+    innovations correlate the more, so the learnt time went to the 3 s limit on ac313 and Erle PXF (pooled 8 s 3.03 m,
+    15 s 6.82 -> 7.14 m, held-out log171 15 s 6.08 -> 6.45 m, Erle PXF's 30 s blockage 2.5 x hold): not kept. A
+    measure that does not depend on the fusion itself (the autopilot's attitude change against the gyros' own
+    integration over the same lag) is the next thing to try.
     ``rotor_drag`` (companion.nav.drag) and ``motion_prior`` (companion.nav.motion_prior) are described in
     their modules: the multicopter's horizontal accelerometers as an air-velocity measurement during a
     blockage, and hold / constant velocity mixed into the output by what they were worth on this flight.
