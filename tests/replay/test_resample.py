@@ -57,3 +57,20 @@ def test_seeded_and_checked():
         spread([], ratio_to_best, np.random.default_rng(0))
     with pytest.raises(ValueError):
         spread(ws, ratio_to_best, np.random.default_rng(0), level=1.0)
+
+
+def test_spread_tables_report_each_length_and_log_against_its_target():
+    from replay.gap_filling_spread import spread_tables
+
+    per_window = {("logA.bin", 8.0): [_window(2.0, 4.0, 5.0), _window(4.0, 4.0, 5.0)],
+                  ("logB.tlog", 8.0): [{"knn_ins_kf": np.tile([1.0, 0.0, 0.0], (3, 1)),
+                                        "hold": np.tile([2.0, 0.0, 0.0], (3, 1))}]}
+    md = spread_tables(per_window, {"logA.bin": "ins", "logB.tlog": "kinematic"}, [8.0], np.random.default_rng(0),
+                       n_boot=50)
+    pooled = next(line for line in md if line.startswith("| 8 | 2 |"))  # INS logs only: logA's two blockages
+    cells = [c.strip() for c in pooled.strip("|").split("|")]
+    assert cells[2] == f"{np.sqrt(10.0):.2f}" and cells[3] == "2.00-4.00" and cells[5] == "3"
+    row_a = next(line for line in md if line.startswith("| logA.bin | ins | 8 | 2 |"))
+    assert f"| {np.sqrt(10.0) / 4.0:.2f} |" in row_a  # hold's 4 m is the best baseline on both windows
+    row_b = next(line for line in md if line.startswith("| logB.tlog | kinematic | 8 | 1 |"))
+    assert "| 0.50 | - | 0.50-0.50 | 100 % |" in row_b
