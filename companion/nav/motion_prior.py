@@ -85,10 +85,10 @@ class MotionPriorConfig:
     select: bool = True
 
     def __post_init__(self) -> None:
-        if (self.max_lag_s < 1 or self.tau_s <= 0 or self.min_pairs < 2 or self.min_age_s < 0 or self.blend_min_age_s < 0
-                or self.variance_scale <= 0 or self.consistency_sigma <= 0):
-            raise ValueError("MotionPriorConfig: need max_lag_s >= 1, tau_s > 0, min_pairs >= 2, min_age_s >= 0, blend_min_age_s >= 0, "
-                             "variance_scale > 0, consistency_sigma > 0")
+        if (self.max_lag_s < 1 or self.tau_s <= 0 or self.min_pairs < 2 or self.min_age_s < 0
+                or self.blend_min_age_s < 0 or self.variance_scale <= 0 or self.consistency_sigma <= 0):
+            raise ValueError("MotionPriorConfig: need max_lag_s >= 1, tau_s > 0, min_pairs >= 2, min_age_s >= 0, "
+                             "blend_min_age_s >= 0, variance_scale > 0, consistency_sigma > 0")
 
 
 class MotionPrior:
