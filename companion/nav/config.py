@@ -110,9 +110,9 @@ class NavigatorConfig:
     measure that does not depend on the fusion, the autopilot's attitude change against the raw gyros' integration
     over the same lag (RMS per tilt axis at 0.1 / 1 / 5 s, a one-off script): simulated flights 2.5 / 2.4 / 2.6 deg
     (flat: white), ac313 0.07 / 0.25 / 0.81 deg, Erle PXF 0.21 / 0.79 / 1.98 deg (still growing at 5 s: persistent
-    beyond it, or the gyros' own bias), log171 0.73 / 9.6 / 0.67 deg (its IMU and attitude do not line up this way:
-    timing or frames not understood). It needs the gyro bias removed and the two streams aligned before it can set
-    an interval.
+    beyond it; with a constant gyro bias removed, ac313 0.04 / 0.24 / 0.72 and Erle PXF 0.21 / 0.81 / 1.96 deg, a random
+    walk rather than a saturating error), log171 0.73 / 9.6 / 0.67 deg (the streams line up at zero time offset, and
+    its one 2 s IMU gap explains part of it, not all). So it gives no correlation time that would set the interval.
     ``rotor_drag`` (companion.nav.drag) and ``motion_prior`` (companion.nav.motion_prior) are described in
     their modules: the multicopter's horizontal accelerometers as an air-velocity measurement during a
     blockage, and hold / constant velocity mixed into the output by what they were worth on this flight.
