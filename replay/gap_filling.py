@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from replay.harness.baselines import constant_velocity, hold_last_fix, series_at, withhold_aiding
+from replay.harness.baselines import BASELINES, constant_velocity, hold_last_fix, series_at, withhold_aiding
 from replay.harness.overrides import apply_overrides
 from companion.nav.navigator import NavigatorConfig, run_navigator
 from companion.nav.outputs import FusedState, ModeChange, NavigatorReset, PredictorPoint
@@ -396,8 +396,8 @@ def main(argv: list[str] | None = None) -> int:
         modes[log.name] = mode
         n_windows[(log.name, L)] = n_windows.get((log.name, L), 0) + len(wins)
         tq = log.fix_t[truth]
-        for a, b in wins:
-            sel = (tq >= a) & (tq < b)
+        for w in wins:
+            sel = _in_windows(tq, [w])
             if sel.any():
                 per_window.setdefault((log.name, L), []).append(
                     {m: e[sel] for m, e in err.items() if not m.startswith("_")})
@@ -438,7 +438,7 @@ def main(argv: list[str] | None = None) -> int:
         nw = sum(v for (n, l), v in n_windows.items() if l == L and modes.get(n) == "ins")
         rows = {m: stats(np.concatenate(v)) for m, v in pooled[L].items() if not m.startswith("_")}
         md += [f"### {L:g} s blockage ({nw} blockages)", ""] + _table(rows) + [""]
-        base = {m: s for m, s in rows.items() if m in ("hold", "cv", "knn", "ins_alone")}
+        base = {m: s for m, s in rows.items() if m in BASELINES}
         who = min(base, key=lambda m: base[m]["h_rmse"])
         summary.append((L, rows["knn_ins_kf"]["h_rmse"], base[who]["h_rmse"], who,
                         rows.get("ins_att", {}).get("h_rmse", math.nan)))
@@ -529,7 +529,7 @@ def _won_tables(per_log, modes, lengths) -> list[str]:
     for (n, L), d in sorted(per_log.items()):
         if "knn_ins_kf" in d:
             ours = stats(np.concatenate(d["knn_ins_kf"]))["h_rmse"]
-            best = min(stats(np.concatenate(d[m]))["h_rmse"] for m in ("hold", "cv", "knn", "ins_alone") if m in d)
+            best = min(stats(np.concatenate(d[m]))["h_rmse"] for m in BASELINES if m in d)
             ratio[(n, L)] = ours / best
     md = ["### Logs won by the full filter (per log and length, every log)", "",
           "Won: KNN+INS+KF H RMSE below the best baseline (hold, CV, KNN alone, INS alone where there is an INS) of "
@@ -571,7 +571,7 @@ def _held_out_table(per_log, modes, lengths, key: str) -> list[str]:
             if "knn_ins_kf" not in d:
                 cells += ["n/a", "n/a"]
                 continue
-            best = min(stats(np.concatenate(d[m]))["h_rmse"] for m in ("hold", "cv", "knn", "ins_alone") if m in d)
+            best = min(stats(np.concatenate(d[m]))["h_rmse"] for m in BASELINES if m in d)
             cells += [f"{stats(np.concatenate(d['knn_ins_kf']))['h_rmse']:.2f}", f"{best:.2f}"]
         md.append(f"| {L:g} | " + " | ".join(cells) + " |")
     return md + [""]

@@ -18,6 +18,9 @@ import numpy as np
 
 from companion.events import Attitude, Event, GnssFix
 
+#: the baselines a full filter is compared with (replay.gap_filling's method keys)
+BASELINES = ("hold", "cv", "knn", "ins_alone")
+
 
 def _last_index(fix_t_s: np.ndarray, query_t_s: np.ndarray) -> np.ndarray:
     idx = np.searchsorted(fix_t_s, query_t_s, side="right") - 1

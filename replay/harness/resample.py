@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: the baselines a full filter is compared with (replay.gap_filling's method keys)
-BASELINES = ("hold", "cv", "knn", "ins_alone")
+from replay.harness.baselines import BASELINES
+
 
 Window = dict[str, np.ndarray]  # method -> errors (n, 3) NED at the truth fixes of one window
 
