@@ -64,3 +64,20 @@ def flight_events(sim, gnss_every: int = 1, deny_s=None) -> list:
                           None, None))
     ev.sort(key=lambda e: (e.t_s, {ImuSample: 0, Attitude: 1}.get(type(e), 2)))
     return ev
+
+
+def tilted_in_ned(e, angle_rad: float):
+    """An Attitude event with its level reference rotated by angle_rad about north (a tilt error fixed in the
+    navigation frame, e.g. levelled on a wrong acceleration): observable as the vehicle turns."""
+    import dataclasses
+    import math
+
+    import numpy as np
+
+    from companion.nav.ins import dcm_from_quat, quat_from_euler
+
+    c, s = math.cos(angle_rad), math.sin(angle_rad)
+    cm = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]]) @ dcm_from_quat(quat_from_euler(e.roll_rad, e.pitch_rad,
+                                                                                                e.yaw_rad))
+    return dataclasses.replace(e, roll_rad=math.atan2(cm[2, 1], cm[2, 2]), pitch_rad=-math.asin(cm[2, 0]),
+                               yaw_rad=math.atan2(cm[1, 0], cm[0, 0]))

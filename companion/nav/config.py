@@ -101,18 +101,18 @@ class NavigatorConfig:
     white noise, 1.5 s loses what every sample adds: 7 tests fail (an 8 s blockage's largest error 6.5 m against
     < 3 m, a 90 deg heading offset's realigned yaw error 27 deg against < 20 deg, the simulated gravity chain 8 position
     fixes against >= 10, ...). Which is right depends on how long a given autopilot's error persists, which is not
-    measured online; so every sample is fused (0) until it is. The tilt innovations tell the two apart (autocorrelation
-    at 0.1 / 0.5 / 1 / 3 s lag, every sample fused): ac313 0.91 / 0.69 / 0.43 / 0.03, Erle PXF 0.99 / 0.88 / 0.71 /
-    0.22, log171 0.75 / 0.41 / 0.27 / 0.05, the simulated flights -0.05-0.01 at every lag. But fusing once per their
-    e-folding time, learnt online while GNSS aids, runs away: fused less often, the INS drifts between fusions and the
-    innovations correlate the more, so the learnt time went to the 3 s limit on ac313 and Erle PXF (pooled 8 s 3.03 m,
-    15 s 6.82 -> 7.14 m, held-out log171 15 s 6.08 -> 6.45 m, Erle PXF's 30 s blockage 2.5 x hold): not kept. A
-    measure that does not depend on the fusion, the autopilot's attitude change against the raw gyros' integration
-    over the same lag (RMS per tilt axis at 0.1 / 1 / 5 s, a one-off script): simulated flights 2.5 / 2.4 / 2.6 deg
-    (flat: white), ac313 0.07 / 0.25 / 0.81 deg, Erle PXF 0.21 / 0.79 / 1.98 deg (still growing at 5 s: persistent
-    beyond it; with a constant gyro bias removed, ac313 0.04 / 0.24 / 0.72 and Erle PXF 0.21 / 0.81 / 1.96 deg, a random
-    walk rather than a saturating error), log171 0.73 / 9.6 / 0.67 deg (the streams line up at zero time offset, and
-    its one 2 s IMU gap explains part of it, not all). So it gives no correlation time that would set the interval.
+    measured online; so every sample is fused (0) until it is. Two measures of that persistence (both tables from
+    python -m replay.attitude_persistence): the autocorrelation of the tilt innovations (every sample fused) at 0.1 /
+    0.5 / 1 / 3 s is ac313 0.91 / 0.69 / 0.43 / 0.03, Erle PXF 0.99 / 0.88 / 0.71 / 0.22, log171 0.75 / 0.41 / 0.27 /
+    0.05, on the simulated flights -0.07-0.01 at every lag. But fusing once per its e-folding time, learnt online while
+    GNSS aids, runs away: fused less often, the INS drifts between fusions and the innovations correlate the more, so
+    the learnt time went to the 3 s limit on ac313 and Erle PXF (pooled 8 s 3.03 m, 15 s 6.82 -> 7.14 m, held-out
+    log171 15 s 6.08 -> 6.45 m, Erle PXF's 30 s blockage 2.5 x hold; not kept). The measure that does not depend on
+    the fusion, the autopilot's attitude change against the gyros' integration over the same lag (a constant gyro bias
+    removed; RMS per tilt axis at 0.1 / 1 / 5 s): simulated flights 2.47 / 2.44 / 2.57 deg (flat: white), ac313 0.04 /
+    0.24 / 0.72, Erle PXF 0.21 / 0.81 / 1.96 deg (growing as a random walk to 5 s, no saturation), log171 0.31 / 9.35 /
+    0.63 deg (its ATT and IMU line up at zero time offset; not understood). So it gives no correlation time that
+    would set the interval.
     ``rotor_drag`` (companion.nav.drag) and ``motion_prior`` (companion.nav.motion_prior) are described in
     their modules: the multicopter's horizontal accelerometers as an air-velocity measurement during a
     blockage, and hold / constant velocity mixed into the output by what they were worth on this flight.

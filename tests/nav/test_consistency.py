@@ -8,10 +8,10 @@ import pytest
 
 from companion.events import Attitude
 from companion.nav.consistency import NisMonitor
-from companion.nav.ins import dcm_from_quat, quat_from_euler
 from companion.nav.navigator import NavigatorConfig, run_navigator
 from companion.nav.outputs import MeasurementUpdate
 from companion.sim.circle import SimNoise, simulate_circle_flight
+from tests.helpers import tilted_in_ned
 
 RECEIVER = SimNoise(gnss_std_h_m=0.5, gnss_std_v_m=0.8)
 
@@ -36,16 +36,6 @@ def test_monitor_mean_is_time_weighted_and_inflation_at_least_one():
         NisMonitor(tau_s=0.0)
 
 
-def _tilted_in_ned(e: Attitude, angle_rad: float) -> Attitude:
-    """The autopilot's attitude with its level reference rotated by angle_rad about north (a tilt error fixed in the
-    navigation frame, e.g. levelled on a wrong acceleration): observable as the vehicle turns."""
-    c, s = math.cos(angle_rad), math.sin(angle_rad)
-    cm = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]]) @ dcm_from_quat(quat_from_euler(e.roll_rad, e.pitch_rad,
-                                                                                                e.yaw_rad))
-    return dataclasses.replace(e, roll_rad=math.atan2(cm[2, 1], cm[2, 2]), pitch_rad=-math.asin(cm[2, 0]),
-                               yaw_rad=math.atan2(cm[1, 0], cm[0, 0]))
-
-
 def _tilt_variance_factor(kind: str, seed: int, config: NavigatorConfig) -> tuple[float, list[MeasurementUpdate]]:
     """Mean fused tilt variance / the nominal one, over the attitude updates after the first 10 s."""
     sim = simulate_circle_flight(60.0, np.random.default_rng(seed), noise=RECEIVER)
@@ -53,7 +43,7 @@ def _tilt_variance_factor(kind: str, seed: int, config: NavigatorConfig) -> tupl
     for e in sim.events:
         if isinstance(e, Attitude):
             if kind == "tilt3":
-                e = _tilted_in_ned(e, math.radians(3.0))
+                e = tilted_in_ned(e, math.radians(3.0))
             elif kind == "yaw90":
                 e = dataclasses.replace(e, yaw_rad=float((e.yaw_rad + math.pi / 2 + math.pi) % (2 * math.pi) - math.pi))
         events.append(e)
@@ -122,7 +112,7 @@ def test_streaming_equals_batch_with_the_monitor_on():
     from companion.nav.navigator import Navigator
 
     sim = simulate_circle_flight(30.0, np.random.default_rng(5), noise=RECEIVER)
-    events = [_tilted_in_ned(e, math.radians(3.0)) if isinstance(e, Attitude) else e for e in sim.events]
+    events = [tilted_in_ned(e, math.radians(3.0)) if isinstance(e, Attitude) else e for e in sim.events]
     cfg = NavigatorConfig(att_consistency=True)
     batch = run_navigator(events, cfg)
     delay = {GnssFix: 0.15, ImuSample: 0.0}
