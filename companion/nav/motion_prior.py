@@ -42,7 +42,7 @@ predictions of each new fix, made before that fix was learnt) found it consisten
 (pooled 4 s 1.68 -> 1.66 m, 8 s 3.23 -> 3.30 m, Erle PXF 8 s 2.90 -> 3.88 m); not kept.
 So in INS mode the product starts at ``blend_min_age_s`` (6 s), after the aided INS's own short-age accuracy: chosen
 on ac313 and Erle PXF with log171 held out, from 1.5 / 3 / 4.5 / 6 / 8 / 10 s (replay.gap_filling --offsets 4
---set motion.min_age_s=X, before the two ages were split): the two tuning logs' 4 s blockage 1.89 / 1.85 / 1.63 /
+--set motion.blend_min_age_s=X): the two tuning logs' 4 s blockage 1.89 / 1.85 / 1.63 /
 1.58 / 1.58 / 1.58 m, 8 s 3.42 / 3.41 / 3.38 / 3.35 / 3.48 / 3.85 m, 15 s 7.15 / 7.15 / 7.14 / 7.13 / 7.15 / 7.28 m;
 held-out log171 at 6 s against 1.5 s: 4 s 0.87 -> 0.85, 8 s 2.71 -> 2.70, 15 s 6.09 -> 6.08, 30 s 19.53 -> 19.53 m.
 Pooled 4 s 1.68 -> 1.42 m (as without the prior), 8 s 3.23 -> 3.18 m; Erle PXF 4 s 1.34 -> 1.03 x the best baseline,
