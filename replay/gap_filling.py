@@ -203,6 +203,13 @@ def _in_windows(t: np.ndarray, windows) -> np.ndarray:
     return m
 
 
+def _window_info(log: LogData, w: tuple[float, float]) -> np.ndarray:
+    """[start, end, GNSS horizontal speed at the last fix before and at the first fix after] of a blockage."""
+    i0 = max(int(np.searchsorted(log.fix_t, w[0], side="left")) - 1, 0)
+    i1 = min(int(np.searchsorted(log.fix_t, w[1], side="right")), len(log.fix_t) - 1)
+    return np.array([w[0], w[1], math.hypot(*log.fix_vel[i0, :2]), math.hypot(*log.fix_vel[i1, :2])])
+
+
 def _drop_fixes(events: list[Event], drop_t: set[float]) -> list[Event]:
     return [e for e in events if not (isinstance(e, GnssFix) and e.instance == 0 and e.t_s in drop_t)]
 
@@ -321,7 +328,7 @@ def throughput(log: LogData, cfg: NavigatorConfig) -> tuple[float, float, float,
 
 def main(argv: list[str] | None = None) -> int:
     from replay.gap_filling_plots import example, plot_rmse
-    from replay.gap_filling_spread import spread_tables
+    from replay.gap_filling_spread import deciding_tables, spread_tables
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--logs-dir", type=Path, default=SHARED_LOGS)
@@ -400,7 +407,7 @@ def main(argv: list[str] | None = None) -> int:
             sel = _in_windows(tq, [w])
             if sel.any():
                 per_window.setdefault((log.name, L), []).append(
-                    {m: e[sel] for m, e in err.items() if not m.startswith("_")})
+                    {m: e[sel] for m, e in err.items() if not m.startswith("_")} | {"_window": _window_info(log, w)})
         for m, e in err.items():
             per_log.setdefault((log.name, L), {}).setdefault(m, []).append(e)
             if mode == "ins":
@@ -471,6 +478,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.held_out:
         md += _held_out_table(per_log, modes, args.lengths, args.held_out)
     md += spread_tables(per_window, modes, args.lengths, np.random.default_rng(0))
+    md += deciding_tables(per_window, modes, args.lengths)
 
     # ---- stream gaps: every message cut while airborne, both orders at resume, 1 Hz and native GNSS
     if args.stream_gaps:

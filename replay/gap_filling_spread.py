@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from replay.harness.baselines import BASELINES
 from replay.harness.resample import Window, h_rmse, ratio_to_best, spread
 
 #: the issue's pooled targets for the full filter's H RMSE (GNSS at 1 Hz), m
@@ -50,3 +51,45 @@ def spread_tables(per_window: dict[tuple[str, float], list[Window]], modes: dict
         md.append(f"| {n[:40]} | {modes.get(n, '?')} | {L:g} | {len(ws)} | {s.value:.2f} | {loo} | {ci} | "
                   f"{100 * s.share_at_most(PER_LOG_TARGET):.0f} % |")
     return md + [""]
+
+
+#: the methods of a blockage's row in :func:`deciding_tables`, with their column labels
+_ROW_METHODS = (("hold", "hold"), ("cv", "CV"), ("knn", "KNN"), ("ins_alone", "INS alone"), ("knn_ins_kf", "full"))
+
+
+def deciding_tables(per_window: dict[tuple[str, float], list[Window]], modes: dict[str, str], lengths) -> list[str]:
+    """The blockages behind each missed target, one row each: where it is (``_window``: start, end, GNSS speed at
+    its start and end), every method's H RMSE on it, and its share of the figure's squared error (of the full
+    filter's for the pooled RMSE; of full filter minus best baseline for a per-log ratio: the blockages that put
+    it above the target)."""
+    md = ["### The blockages behind the missed targets", "",
+          "Each blockage of a missed figure: start-end (s of the log), GNSS horizontal speed at its last fix before "
+          "and first fix after (m/s), every method's H RMSE on it (m), and its share of what decides the figure: of "
+          "the full filter's squared error for a pooled RMSE (the five largest), of the full filter's squared error "
+          "minus the best baseline's for a per-log ratio (negative: the filter beat it there).", ""]
+    head = ("| figure | blockage s | speed m/s | " + " | ".join(lab for _, lab in _ROW_METHODS) + " | share |",
+            "|---|---|---|" + "---:|" * (len(_ROW_METHODS) + 1))
+    rows: list[str] = []
+
+    def row(fig: str, w: Window, share: float) -> str:
+        t0, t1, v0, v1 = (float(x) for x in w["_window"])
+        cells = [f"{h_rmse([w], m):.2f}" if m in w else "n/a" for m, _ in _ROW_METHODS]
+        return f"| {fig} | {t0:.1f}-{t1:.1f} | {v0:.1f} -> {v1:.1f} | " + " | ".join(cells) + f" | {100 * share:.0f} % |"
+
+    for L in lengths:
+        target = POOLED_TARGET_M.get(L)
+        ws = [(n, w) for (n, l), v in sorted(per_window.items()) if l == L and modes.get(n) == "ins" for w in v]
+        if target is None or not ws or h_rmse([w for _, w in ws], "knn_ins_kf") <= target:
+            continue
+        sq = np.array([np.sum(w["knn_ins_kf"][:, :2] ** 2) for _, w in ws])
+        for i in np.argsort(-sq, kind="stable")[:5]:
+            n, w = ws[i]
+            rows.append(row(f"pooled {L:g} s ({n[:12]})", w, sq[i] / sq.sum()))
+    for (n, L), ws in sorted(per_window.items()):
+        if "knn_ins_kf" not in ws[0] or "_window" not in ws[0] or ratio_to_best(ws) <= PER_LOG_TARGET:
+            continue
+        best = min((m for m in BASELINES if m in ws[0]), key=lambda m: h_rmse(ws, m))
+        d = np.array([np.sum(w["knn_ins_kf"][:, :2] ** 2) - np.sum(w[best][:, :2] ** 2) for w in ws])
+        for w, di in zip(ws, d):
+            rows.append(row(f"{n[:12]} {L:g} s vs {best}", w, di / d.sum()))
+    return md + ["All targets met: no blockage to show.", ""] if not rows else md + [*head, *rows, ""]

@@ -74,3 +74,24 @@ def test_spread_tables_report_each_length_and_log_against_its_target():
     assert f"| {np.sqrt(10.0) / 4.0:.2f} |" in row_a  # hold's 4 m is the best baseline on both windows
     row_b = next(line for line in md if line.startswith("| logB.tlog | kinematic | 8 | 1 |"))
     assert "| 0.50 | - | 0.50-0.50 | 100 % |" in row_b
+
+
+def test_deciding_tables_show_the_blockages_behind_each_missed_target():
+    from replay.gap_filling_spread import deciding_tables
+
+    def win(full_m, hold_m, t0):
+        return _window(full_m, hold_m, 9.0) | {"_window": np.array([t0, t0 + 8.0, 1.5, 0.25])}
+
+    # logA misses both targets: pooled RMSE sqrt((25 + 1) / 2) = 3.6 > 3 m, and 1.9 x hold's; logB meets its ratio
+    per_window = {("logA.bin", 8.0): [win(5.0, 1.0, 100.0), win(1.0, 2.5, 130.0)],
+                  ("logB.tlog", 8.0): [win(1.0, 2.0, 50.0)]}
+    md = deciding_tables(per_window, {"logA.bin": "ins", "logB.tlog": "kinematic"}, [8.0])
+    pooled = [line for line in md if line.startswith("| pooled 8 s")]
+    assert [line.split("|")[2].strip() for line in pooled] == ["100.0-108.0", "130.0-138.0"]  # largest first
+    assert pooled[0].endswith(f"| {100 * 25 / 26:.0f} % |") and "| 1.5 -> 0.2 |" in pooled[0]
+    ratio = [line for line in md if line.startswith("| logA.bin 8 s vs hold")]
+    # the full filter's squared error minus hold's: +24 and -5.25 per point, so 128 % and -28 % of the excess
+    assert [line.rsplit("|", 2)[1].strip() for line in ratio] == ["128 %", "-28 %"]
+    assert "| 5.00 |" in ratio[0] and not any("logB" in line for line in md)
+    assert deciding_tables({("logB.tlog", 8.0): per_window[("logB.tlog", 8.0)]}, {"logB.tlog": "kinematic"},
+                           [8.0])[-2] == "All targets met: no blockage to show."
