@@ -27,6 +27,11 @@ class NavigatorConfig:
     ``predictor_sigma_scale``: a predictor point extrapolates the last fix, so its error is correlated with
     that fix, which the filter has already used; treating it as independent makes the filter
     overconfident (position NEES ~2 per axis on simulated flights). Its sigma is scaled by this factor.
+    Rechecked on the blockages with everything else at its default (replay.gap_filling --offsets 4 --no-stream-gaps
+    --set predictor_sigma_scale=X; ac313 + Erle PXF, log171 held out), X = 1.5 / 2 / 3 / 4 / 6: tuning logs 1 s 0.49 /
+    0.51 / 0.53 / 0.54 / 0.55, 8 s 3.37 / 3.35 / 3.33 / 3.43 / 3.43 m; held-out log171 8 s 2.90 / 2.70 / 2.60 / 2.57 /
+    2.56 m; Erle PXF 8 s 1.15 / 1.30 / 1.44 / 1.87 / 1.92 x its best baseline (hold); pooled 8 s 3.24 / 3.18 / 3.14 /
+    3.21 / 3.20 m. No value is better everywhere; 2 stays.
     ``predictor_decorrelate``: the k-th point fused after a fix has its variance multiplied by k: the
     points of one recursion share the anchor's and the neighbours' error, so 80 points in an 8 s blockage
     must not count as 80 independent measurements (that pulled the INS towards the predictor's drift).
