@@ -206,7 +206,7 @@ def _in_windows(t: np.ndarray, windows) -> np.ndarray:
 def _window_info(log: LogData, w: tuple[float, float]) -> np.ndarray:
     """[start, end, GNSS horizontal speed at the last fix before and at the first fix after] of a blockage."""
     i0 = max(int(np.searchsorted(log.fix_t, w[0], side="left")) - 1, 0)
-    i1 = min(int(np.searchsorted(log.fix_t, w[1], side="right")), len(log.fix_t) - 1)
+    i1 = min(int(np.searchsorted(log.fix_t, w[1], side="left")), len(log.fix_t) - 1)  # windows are [start, end)
     return np.array([w[0], w[1], math.hypot(*log.fix_vel[i0, :2]), math.hypot(*log.fix_vel[i1, :2])])
 
 

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from replay.harness.baselines import BASELINES
-from replay.harness.resample import Window, h_rmse, ratio_to_best, spread
+from replay.harness.resample import Window, best_baseline, h_rmse, ratio_to_best, spread
 
 #: the issue's pooled targets for the full filter's H RMSE (GNSS at 1 Hz), m
 POOLED_TARGET_M = {8.0: 3.0, 15.0: 8.0, 30.0: 30.0}
@@ -86,9 +85,9 @@ def deciding_tables(per_window: dict[tuple[str, float], list[Window]], modes: di
             n, w = ws[i]
             rows.append(row(f"pooled {L:g} s ({n[:12]})", w, sq[i] / sq.sum()))
     for (n, L), ws in sorted(per_window.items()):
-        if "knn_ins_kf" not in ws[0] or "_window" not in ws[0] or ratio_to_best(ws) <= PER_LOG_TARGET:
+        if "knn_ins_kf" not in ws[0] or ratio_to_best(ws) <= PER_LOG_TARGET:
             continue
-        best = min((m for m in BASELINES if m in ws[0]), key=lambda m: h_rmse(ws, m))
+        best = best_baseline(ws)[0]
         d = np.array([np.sum(w["knn_ins_kf"][:, :2] ** 2) - np.sum(w[best][:, :2] ** 2) for w in ws])
         for w, di in zip(ws, d):
             rows.append(row(f"{n[:12]} {L:g} s vs {best}", w, di / d.sum()))

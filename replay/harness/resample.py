@@ -28,12 +28,17 @@ def h_rmse(windows: Sequence[Window], method: str) -> float:
     return float(np.sqrt(np.mean(e[:, 0] ** 2 + e[:, 1] ** 2)))
 
 
-def ratio_to_best(windows: Sequence[Window], full: str = "knn_ins_kf", baselines: Sequence[str] = BASELINES) -> float:
-    """The full filter's H RMSE over the best baseline's on the same windows (the best chosen on these windows)."""
+def best_baseline(windows: Sequence[Window], baselines: Sequence[str] = BASELINES) -> tuple[str, float]:
+    """The baseline with the lowest H RMSE on these windows, and that RMSE."""
     present = [m for m in baselines if m in windows[0]]
     if not present:
         raise ValueError("no baseline in the windows")
-    return h_rmse(windows, full) / min(h_rmse(windows, m) for m in present)
+    return min(((m, h_rmse(windows, m)) for m in present), key=lambda mr: mr[1])
+
+
+def ratio_to_best(windows: Sequence[Window], full: str = "knn_ins_kf", baselines: Sequence[str] = BASELINES) -> float:
+    """The full filter's H RMSE over the best baseline's on the same windows (the best chosen on these windows)."""
+    return h_rmse(windows, full) / best_baseline(windows, baselines)[1]
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from replay.harness.resample import h_rmse, ratio_to_best, spread
+from replay.harness.resample import best_baseline, h_rmse, ratio_to_best, spread
 
 
 def _window(full_m: float, hold_m: float, ins_m: float, n: int = 4) -> dict[str, np.ndarray]:
@@ -21,6 +21,7 @@ def test_ratio_takes_the_best_baseline_of_these_windows():
     ws = [_window(2.0, 1.0, 4.0), _window(2.0, 3.0, 4.0)]
     assert ratio_to_best(ws) == pytest.approx(2.0 / np.sqrt(5.0))  # hold's RMSE sqrt((1 + 9) / 2) beats INS's 4
     assert ratio_to_best(ws[1:]) == pytest.approx(2.0 / 3.0)
+    assert best_baseline(ws) == ("hold", pytest.approx(np.sqrt(5.0)))
     with pytest.raises(ValueError):
         ratio_to_best([{"knn_ins_kf": np.zeros((1, 3))}])
 
