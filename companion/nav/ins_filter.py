@@ -238,8 +238,11 @@ class InsFilter:
         if ac is not None and prev_t is not None and 0 < t - prev_t <= c.max_imu_step_s:
             dt = t - prev_t
             a = ev.accel_frd_mps2
-            self._sf_dv[0] += (ac[0] * a[0] + ac[1] * a[1] + ac[2] * a[2]) * dt
-            self._sf_dv[1] += (ac[3] * a[0] + ac[4] * a[1] + ac[5] * a[2]) * dt
+            dvn = (ac[0] * a[0] + ac[1] * a[1] + ac[2] * a[2]) * dt
+            dve = (ac[3] * a[0] + ac[4] * a[1] + ac[5] * a[2]) * dt
+            self._sf_dv[0] += dvn
+            self._sf_dv[1] += dve
+            self.hover.add_horizontal_dv(dvn, dve)
         ins = self.ins
         if ins is None or self.mode != "ins" or self._reinit_pending is not None:
             return

@@ -8,6 +8,7 @@ from companion.nav.hover import HoverDetector
 from companion.nav.navigator import NavigatorConfig, run_navigator
 from companion.nav.outputs import FusedState, MeasurementUpdate
 from companion.sim.flight import CANBERRA_FIELD, SimConfig, simulate_flight
+from companion.sim.motion import dcm_from_euler
 from companion.sim.trajectory import Climb, FlightProfile, Hold, Speed, Straight
 
 
@@ -71,3 +72,39 @@ def test_zero_velocity_keeps_a_hover_near_hold_last_fix():
             assert any(isinstance(u, MeasurementUpdate) and u.kind == "zero_velocity" and u.accepted for u in out)
     assert errs[True] < 1.5  # hold-last-fix: within ~0.6 m (the wander)
     assert errs[True] <= errs[False]
+
+
+def _hover_share_blocked(legs, block_from_s, t_from_s, t_to_s):
+    """As _hover_share, with no GNSS speed from ``block_from_s`` on (a blockage)."""
+    sim = simulate_flight(FlightProfile(legs, CANBERRA_FIELD), seed=3, config=SimConfig())
+    det = HoverDetector()
+    imu, gnss = sim.imu, sim.gnss
+    j = 0
+    flags = []
+    for k, t in enumerate(imu.t_s):
+        while j < len(gnss.t_s) and gnss.t_s[j] <= t:
+            if gnss.t_s[j] < block_from_s:
+                det.add_speed(gnss.t_s[j], float(np.hypot(*gnss.vel_ned_mps[j, :2])))
+            j += 1
+        det.add_imu(float(t), imu.accel_frd_mps2[k], imu.gyro_frd_radps[k])
+        if k:  # the specific force resolved with the true attitude (the navigator uses the autopilot's)
+            f_ned = dcm_from_euler(sim.truth_imu.euler_rad[k]) @ imu.accel_frd_mps2[k]
+            det.add_horizontal_dv(*(f_ned[:2] * (t - imu.t_s[k - 1])))
+        if t_from_s <= t < t_to_s:
+            flags.append(det.hover(float(t)))
+    return float(np.mean(flags))
+
+
+def test_no_hover_while_cruising_away_from_a_stop_in_a_blockage():
+    """GNSS last saw the vehicle still; it then accelerates to 8 m/s and cruises: the IMU is as quiet as in a hover
+    once the acceleration ends, but the vehicle is moving."""
+    legs = [Hold(2.0), Climb(10.0, rate_mps=2.0), Hold(20.0), Speed(8.0, max_accel_mps2=2.0), Straight(300.0),
+            Speed(0.0)]
+    tr = FlightProfile(legs, CANBERRA_FIELD).sample(np.arange(0.0, 60.0, 0.05))
+    speed = np.hypot(tr.vel_ned_mps[:, 0], tr.vel_ned_mps[:, 1])
+    leave_s = float(tr.t_s[np.argmax(speed > 0.01)])
+    block_s = leave_s - 0.5  # GNSS stops just before the vehicle leaves the hover
+    moving_s = float(tr.t_s[np.argmax(speed > 1.5)])  # 1.5 s later at 2 m/s^2
+    assert _hover_share_blocked(legs, block_s, t_from_s=moving_s, t_to_s=block_s + 30.0) == 0.0
+    # the hover before it is still found with GNSS up to the blockage
+    assert _hover_share_blocked(legs, block_s, t_from_s=15.0, t_to_s=block_s) > 0.9
