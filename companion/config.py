@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.inject.gps_input import InjectConfig
+from companion.nav.trust import TrustConfig
 from companion.mavlink.dialect import mavlink
 
 
@@ -118,6 +119,8 @@ class Config:
     link: LinkConfig = field(default_factory=LinkConfig)
     streams: StreamConfig = field(default_factory=StreamConfig)
     inject: InjectConfig = field(default_factory=InjectConfig)
+    #: when the navigator's solution may carry the vehicle through an outage (inject.activate = "takeover")
+    trust: TrustConfig = field(default_factory=TrustConfig)
     record: RecordConfig = field(default_factory=RecordConfig)
     gravity: GravityConfig = field(default_factory=GravityConfig)
     #: NavigatorConfig settings (companion.nav.navigator) to change, e.g. the noise of the vehicle's sensors;
@@ -128,7 +131,7 @@ class Config:
     def as_flat_dict(self) -> dict[str, str]:
         """section.key -> value text, for the MCAP ``config`` metadata."""
         out: dict[str, str] = {"duration_s": str(self.duration_s)}
-        for sec in ("link", "streams", "inject", "record", "gravity"):
+        for sec in ("link", "streams", "inject", "trust", "record", "gravity"):
             for k, v in dataclasses.asdict(getattr(self, sec)).items():
                 out[f"{sec}.{k}"] = str(v)
         for k, v in sorted(self.navigator.items()):
@@ -150,7 +153,8 @@ class Config:
         return NavigatorConfig(**self.navigator)
 
 
-_SECTIONS = {"link": LinkConfig, "inject": InjectConfig, "record": RecordConfig, "gravity": GravityConfig}
+_SECTIONS = {"link": LinkConfig, "inject": InjectConfig, "trust": TrustConfig, "record": RecordConfig,
+             "gravity": GravityConfig}
 
 #: The range every numeric setting must lie in, from the unit in its name (longest suffix first); a value outside
 #: its range is a start-up error, so no setting can make the process spin, fill the disk or claim nonsense.
@@ -168,6 +172,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "inject.gps_id": (0, 1), "inject.receiver_instance": (0, 1), "inject.satellites": (6, 254),
     "inject.max_lag_s": (0.01, 5.0), "inject.autopilot_lag_s": (0.0, 0.25), "inject.receiver_lag_s": (0.0, 2.0),
     "inject.consistency_window_s": (0.05, 10.0), "inject.gnss_timeout_s": (0.05, 60.0),
+    "trust.max_nis_ratio": (0.1, 1e4), "trust.receiver_instance": (0, 1), "trust.report_interval_s": (0.1, 3600.0),
     "record.flush_interval_s": (0.05, 3600.0), "record.segment_s": (0.0, 86400.0), "record.max_total_mb": (0.0, 1e7),
     "gravity.accept_min_track_cells": (0.0, 1e4), "gravity.accept_min_signal_ratio": (0.0, 1e9),
     "gravity.sigma_mgal": (1e-3, 1e4),
@@ -395,10 +400,10 @@ def load_config(path: str | os.PathLike | None = None, overrides: dict[str, Any]
         if not isinstance(target, dict):
             raise ConfigError(f"[{sec}] must be a table")
         target[k] = value
-    unknown = set(data) - {"link", "streams", "inject", "record", "gravity", "navigator", "duration_s"}
+    unknown = set(data) - {*_SECTIONS, "streams", "navigator", "duration_s"}
     if unknown:
-        raise ConfigError(f"unknown setting(s) {', '.join(sorted(unknown))} (sections: link, streams, inject, record, "
-                          "gravity, navigator)")
+        raise ConfigError(f"unknown setting(s) {', '.join(sorted(unknown))} (sections: link, streams, inject, trust, "
+                          "record, gravity, navigator)")
     kw: dict[str, Any] = {}
     for name, cls in _SECTIONS.items():
         if name in data:

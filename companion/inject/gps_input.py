@@ -38,7 +38,10 @@ refusal is counted and recorded on ``/inject/dropped`` with the reason. Every GP
 
 Activation: ``activate = "always"`` sends every valid solution (the set-up where the companion is the
 GPS instance the EKF follows); ``"gnss_loss"`` sends only while the real receiver (``receiver_instance``)
-has no 3D fix or has been silent for ``gnss_timeout_s``, and stops ``recover_s`` after it is healthy again.
+has no 3D fix or has been silent for ``gnss_timeout_s``, and stops ``recover_s`` after it is healthy again;
+``"backup"`` keeps this instance ready beside the receiver but sends no fix in an outage unless aided by what the
+autopilot lacks; ``"takeover"`` is ``backup`` that also carries the vehicle through an outage on its own solution when
+the trust monitor (companion.nav.trust) judged that solution fit at the moment of the loss.
 """
 
 from __future__ import annotations
@@ -69,6 +72,8 @@ from companion.mavlink.gps_input import (  # noqa: F401 - the wire encoding, re-
     gps_week_from_unix,
 )
 from companion.nav.frame import LocalFrame
+from companion.nav.outputs import MeasurementUpdate, ModeChange, NavigatorReset
+from companion.nav.trust import TrustConfig, TrustMonitor, TrustVerdict
 from companion.pipeline.stage import Stage
 
 MAX_UNIX_S = 4102444800  # 2100-01-01: a later "UTC" is a corrupt clock (and its GPS week overflows uint16)
@@ -76,7 +81,7 @@ MAX_GPS_WEEK = 65535  # GPS_INPUT.time_week is a uint16
 RX_FIXES_KEPT = 32  # recent receiver 3D fixes kept for the cross-check (>= 0.6 s of a 50 Hz receiver)
 
 MODES = ("off", "shadow", "inject")
-ACTIVATIONS = ("backup", "always", "gnss_loss")
+ACTIVATIONS = ("backup", "takeover", "always", "gnss_loss")
 
 
 #: the rate limit lets through a state at least this fraction of 1 / rate_hz after the last one sent: the epochs
@@ -92,6 +97,9 @@ class InjectConfig:
     # a state keeps its fix type only if it was aided within ``aid_valid_s`` by information the autopilot lacks
     # (``outage_aids``), else it goes out as no fix and ArduPilot dead-reckons exactly as it would alone.
     # always: every valid state with its covariance's fix type (the companion as the GPS the EKF follows).
+    # takeover: backup, and in an outage the navigator's own solution with its covariance's fix type, provided the trust
+    # monitor (companion.nav.trust, settings [trust]) judged it fit when the receiver was lost; decided once per outage
+    # (an unfit solution cannot become fit without GNSS), after which the fix type follows the growing covariance.
     # gnss_loss: while the receiver has no 3D fix (until it is healthy again for ``recover_s``), and while the autopilot
     # says it is disarmed (its arming check needs a 3D fix on every configured GPS); nothing while armed beside a
     # healthy receiver. With no HEARTBEAT (a dataflash log) the armed state is unknown: only the outage counts.
@@ -224,8 +232,13 @@ class Injector(Stage):
     Pure apart from the sender callback: vehicle time only.
     """
 
-    def __init__(self, config: InjectConfig | None = None, sender: Callable[[Any], bool] | None = None) -> None:
+    def __init__(self, config: InjectConfig | None = None, sender: Callable[[Any], bool] | None = None,
+                 trust: TrustConfig | None = None) -> None:
         self.config = config or InjectConfig()
+        #: judges the navigator's solution for a takeover (activate = "takeover"; its verdicts are recorded)
+        self.trust = TrustMonitor(trust) if self.config.activate == "takeover" else None
+        self._outage_t: float | None = None  # start of the receiver outage in progress (takeover)
+        self._takeover = False  # the navigator carries the vehicle through this outage
         self.sender = sender
         self.on_sent: Callable[[GpsInputRecord], None] | None = None
         #: live: the clock of the link's receive times, and the arrival time of the input being processed (the
@@ -267,8 +280,11 @@ class Injector(Stage):
             return []
         if isinstance(item, (ImuSample, GnssFix, Attitude)) and _finite(item.t_s):
             self._newest_input_t = max(self._newest_input_t, item.t_s)
+        verdicts: list[Event] = []
+        if self.trust is not None and isinstance(item, _TRUST_INPUTS):
+            verdicts = self.trust.observe(item)
         if isinstance(item, FusedState):
-            return self._on_state(item)
+            return verdicts + self._on_state(item) if verdicts else self._on_state(item)
         if isinstance(item, GnssFix):
             return self._on_gnss(item)
         if isinstance(item, Heartbeat):
@@ -381,6 +397,8 @@ class Injector(Stage):
         ):
             self._healthy_since = None
             out += self._set_active(s.t_s, True, f"receiver silent for more than {c.gnss_timeout_s:g} s")
+        if c.activate == "takeover" and _finite(s.t_s):
+            out += self._decide_takeover(s.t_s)
         if not (self._active or (c.activate == "gnss_loss" and self._armed is False)):
             return out
         if not _finite(s.t_s):
@@ -428,6 +446,24 @@ class Injector(Stage):
         out.append(rec)
         return out
 
+    def _decide_takeover(self, t_s: float) -> list[Event]:
+        """At the start of a receiver outage, take over for its whole length if the trust monitor's latest verdict
+        says fit (a verdict cannot turn fit without GNSS, so it is not revisited); at its end, hand back."""
+        out_now = self._last_good_gnss_t is not None and self._receiver_out(t_s)
+        if out_now and self._outage_t is None:
+            self._outage_t = t_s
+            v = self.trust.verdict if self.trust is not None else None
+            self._takeover = v is not None and v.fit
+            why = ("takeover: the navigator's solution was fit at the loss" if self._takeover
+                   else f"no takeover: {v.reason if v is not None else 'not judged yet'}")
+            return [InjectorState(t_s, self._takeover, why)]
+        if not out_now and self._outage_t is not None:
+            self._outage_t = None
+            if self._takeover:
+                self._takeover = False
+                return [InjectorState(t_s, False, "receiver back: takeover ends")]
+        return []
+
     def _cross_check(self, s: FusedState) -> str:
         """Why the state disagrees with the real receiver ("" when it agrees or cannot be checked): against the 3D
         fix nearest to it in time within consistency_window_s, carried to the state's epoch."""
@@ -460,6 +496,22 @@ class Injector(Stage):
             return "inconsistent with the receiver"
         return ""
 
+    def _backup_fix(self, t_s: float, fix: int, why: str) -> tuple[int, str]:
+        """The fix type a backup (or takeover) instance sends for a state whose covariance gives ``fix`` (2D or 3D):
+        in a receiver outage no fix unless aided within aid_valid_s by what the autopilot lacks, or taking over; armed
+        beside a healthy receiver no fix unless backup_fix_when_armed."""
+        c = self.config
+        aided = self._last_aid_t is not None and t_s - self._last_aid_t <= c.aid_valid_s
+        if self._receiver_out(t_s):
+            if aided:
+                return fix, why
+            if self._takeover:
+                return fix, f"takeover, {why}"
+            return int(FixType.NO_FIX), "receiver outage, no aid the autopilot lacks: it dead-reckons alone"
+        if self._armed and not c.backup_fix_when_armed:
+            return int(FixType.NO_FIX), "armed beside a healthy receiver: no fix, so no switch when it is lost"
+        return fix, why
+
     def _alt_ignored(self, s: FusedState) -> bool:
         return not (_finite(s.sigma_v_m) and max(s.sigma_v_m, self._floor_v_m) <= self.config.max_v_acc_alt_m)
 
@@ -480,12 +532,8 @@ class Injector(Stage):
             why = f"sigma_h {sh:.1f} m > {c.max_h_acc_3d_m:g}" if sh > c.max_h_acc_3d_m else f"sigma_v {sv:.1f} m > {c.max_v_acc_3d_m:g}"
         else:
             fix, why = int(FixType.NO_FIX), f"sigma_h {sh:.1f} m > {c.max_h_acc_2d_m:g}"
-        if c.activate == "backup" and fix >= FixType.FIX_2D and self._receiver_out(s.t_s) and not (
-                self._last_aid_t is not None and s.t_s - self._last_aid_t <= c.aid_valid_s):
-            fix, why = int(FixType.NO_FIX), "receiver outage, no aid the autopilot lacks: it dead-reckons alone"
-        elif c.activate == "backup" and fix >= FixType.FIX_2D and self._armed and not c.backup_fix_when_armed and not (
-                self._receiver_out(s.t_s) and self._last_aid_t is not None and s.t_s - self._last_aid_t <= c.aid_valid_s):
-            fix, why = int(FixType.NO_FIX), "armed beside a healthy receiver: no fix, so no switch when it is lost"
+        if c.activate in ("backup", "takeover") and fix >= FixType.FIX_2D:
+            fix, why = self._backup_fix(s.t_s, fix, why)
         cov = s.cov_diag
         if len(cov) >= 6 and _finite(cov[3], cov[4]) and min(cov[3], cov[4]) >= 0:
             speed_acc = math.sqrt(max(cov[3], cov[4]))
@@ -513,6 +561,9 @@ class Injector(Stage):
             time_boot_us=units.us_from_s(boot_s), time_week=week, time_week_ms=week_ms, yaw_cdeg=yaw,
             extrapolated_s=carried_s,
         )
+
+
+_TRUST_INPUTS = (FusedState, GnssFix, MeasurementUpdate, NavigatorReset, ModeChange)
 
 
 def _carry(s: FusedState, t_s: float) -> FusedState:

@@ -95,7 +95,7 @@ class Runtime:
         nav_config = nav_config or config.nav_config()
         self.link = MavlinkLink(config.link, config.streams, gravity=gravity)
         sender = self.link.send if config.inject.mode == "inject" else None
-        self.injector = Injector(config.inject, sender=sender)
+        self.injector = Injector(config.inject, sender=sender, trust=config.trust)
         self.injector.on_sent = self._on_sent
         # freshness judged by when the input's bytes arrived, with a margin for the way out after the check
         self.injector.arrival_clock = lambda: time.perf_counter() + DELIVERY_MARGIN_S
