@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import math
 import struct
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
 from typing import Any, ClassVar
@@ -71,6 +71,7 @@ from companion.mavlink.gps_input import (  # noqa: F401 - the wire encoding, re-
     encode_gps_input,
     gps_week_from_unix,
 )
+from companion.inject.receiver_check import ReceiverCrossCheck
 from companion.nav.frame import LocalFrame
 from companion.nav.outputs import MeasurementUpdate, ModeChange, NavigatorReset
 from companion.nav.trust import TrustConfig, TrustMonitor, TrustVerdict
@@ -78,7 +79,6 @@ from companion.pipeline.stage import Stage
 
 MAX_UNIX_S = 4102444800  # 2100-01-01: a later "UTC" is a corrupt clock (and its GPS week overflows uint16)
 MAX_GPS_WEEK = 65535  # GPS_INPUT.time_week is a uint16
-RX_FIXES_KEPT = 32  # recent receiver 3D fixes kept for the cross-check (>= 0.6 s of a 50 Hz receiver)
 
 MODES = ("off", "shadow", "inject")
 ACTIVATIONS = ("backup", "takeover", "always", "gnss_loss")
@@ -267,12 +267,8 @@ class Injector(Stage):
         self._newest_input_t = -math.inf
         # the receiver's recent 3D fixes: (t_s, lat_deg, lon_deg, sigma_h_m, vel_n_mps, vel_e_mps, speed_sigma_mps),
         # velocities None when not given
-        self._rx_fixes: deque[tuple[float, float, float, float, float | None, float | None, float]] = deque(
-            maxlen=RX_FIXES_KEPT)
-        self._inconsistent = False
+        self.cross_check = ReceiverCrossCheck(self.config)
         self._armed: bool | None = None  # the autopilot's HEARTBEAT armed flag (None: never heard)
-        self.cross_checked = 0  # states compared with a receiver fix, of cross_check_states that reached the check
-        self.cross_check_states = 0
 
     # -- stage interface ----------------------------------------------------------------------
     def process(self, item: Any) -> list[Event]:
@@ -314,8 +310,7 @@ class Injector(Stage):
             meta[f"fix_type.{k}"] = str(v)
         for why, n in sorted(self.dropped.items()):
             meta[f"dropped.{why}"] = str(n)
-        meta["cross_check.states"], meta["cross_check.checked"] = str(self.cross_check_states), str(self.cross_checked)
-        meta["cross_check.fraction"] = f"{self.cross_checked / self.cross_check_states:.4f}" if self.cross_check_states else "0"
+        meta.update(self.cross_check.metadata())
         return meta
 
     def summary_lines(self) -> list[str]:
@@ -323,9 +318,7 @@ class Injector(Stage):
         fix = ", ".join(f"{FixType(k).name} {v}" for k, v in sorted(self.fix_types.items())) or "none"
         lines = [f"gps_input    mode {c.mode}, gps_id {c.gps_id}: {self.built} built, {self.sent} sent ({fix})"]
         lines += [f"gps_input    not sent {n}: {why}" for why, n in sorted(self.dropped.items())]
-        if self.cross_check_states:
-            lines.append(f"gps_input    receiver cross-check on {self.cross_checked} of {self.cross_check_states} states "
-                         f"({100.0 * self.cross_checked / self.cross_check_states:.1f} %)")
+        lines += self.cross_check.summary_lines()
         return lines
 
     # -- activation ---------------------------------------------------------------------------
@@ -355,8 +348,8 @@ class Injector(Stage):
             h = receiver_sigma(fix, c.uere_m)[0]
             vn, ve = (fix.vel_n_mps, fix.vel_e_mps) if _finite(fix.vel_n_mps, fix.vel_e_mps) else (None, None)
             s_v = fix.speed_acc_mps if _finite(fix.speed_acc_mps) and fix.speed_acc_mps > 0 else c.receiver_speed_sigma_mps
-            self._rx_fixes.append((fix.t_s, fix.lat_deg, fix.lon_deg, h if h is not None and _finite(h) else c.uere_m, vn, ve,
-                                   s_v))
+            self.cross_check.add_fix(fix.t_s, fix.lat_deg, fix.lon_deg, h if h is not None and _finite(h) else c.uere_m,
+                                     vn, ve, s_v)
             self._last_good_gnss_t = fix.t_s
         else:
             self._last_bad_gnss_t = fix.t_s
@@ -421,7 +414,7 @@ class Injector(Stage):
             return out + self._drop(s.t_s, why)
         carried_s = tgt - s.t_s
         s = _carry(s, tgt)
-        why = self._cross_check(s)
+        why = self.cross_check.disagreement(s)
         if why:
             return out + self._drop(s.t_s, why)
         if self.arrival_clock is not None and self.arrival_s is not None:
@@ -463,38 +456,6 @@ class Injector(Stage):
                 self._takeover = False
                 return [InjectorState(t_s, False, "receiver back: takeover ends")]
         return []
-
-    def _cross_check(self, s: FusedState) -> str:
-        """Why the state disagrees with the real receiver ("" when it agrees or cannot be checked): against the 3D
-        fix nearest to it in time within consistency_window_s, carried to the state's epoch."""
-        c = self.config
-        self.cross_check_states += 1
-        fx = min(self._rx_fixes, key=lambda f: abs(s.t_s - f[0]), default=None)
-        if fx is None or abs(s.t_s - fx[0]) > c.consistency_window_s:
-            return "inconsistent with the receiver (not yet re-checked)" if self._inconsistent else ""
-        self.cross_checked += 1
-        dt = s.t_s - fx[0]
-        has_v = fx[4] is not None
-        vn, ve = (fx[4], fx[5]) if has_v else (s.vel_n_mps, s.vel_e_mps)
-        n, e, _ = LocalFrame(fx[1], fx[2], 0.0).to_ned_m(s.lat_deg, s.lon_deg, 0.0)
-        dn, de = float(n) - vn * dt, float(e) - ve * dt
-        # hypot: no square of a huge (finite) sigma or velocity overflows. The lag allowance takes the receiver's
-        # speed when it has one: a wrong state velocity must not widen its own allowance
-        lag_m = math.hypot(vn, ve) * c.receiver_lag_s
-        k = math.sqrt(c.consistency_chi2)
-        allowed_m = math.hypot(k * math.hypot(s.sigma_h_m, fx[3]), lag_m)
-        ok = math.hypot(dn, de) <= allowed_m
-        if ok and has_v:
-            # velocity: a state moving 15 m/s off the receiver is metres off it 0.1 s later, whatever sigma_h says
-            cov = s.cov_diag
-            known = len(cov) >= 6 and _finite(cov[3], cov[4]) and min(cov[3], cov[4]) >= 0
-            sv_state = math.sqrt(max(cov[3], cov[4])) if known else math.inf
-            allowed_v = math.hypot(k * math.hypot(sv_state, fx[6]), c.consistency_accel_mps2 * (abs(dt) + c.receiver_lag_s))
-            ok = math.hypot(s.vel_n_mps - vn, s.vel_e_mps - ve) <= allowed_v
-        self._inconsistent = not ok
-        if self._inconsistent:
-            return "inconsistent with the receiver"
-        return ""
 
     def _backup_fix(self, t_s: float, fix: int, why: str) -> tuple[int, str]:
         """The fix type a backup (or takeover) instance sends for a state whose covariance gives ``fix`` (2D or 3D):
