@@ -38,15 +38,18 @@ MARK_STEP_S = 5.0
 class Scenario:
     """One scripted flight. Times in seconds of vehicle time.
 
-    hover_s: hover after the climb before the square (or the whole hover when ``laps`` is 0).
-    laps: laps of the square (0: no square). deny_in: "hover", "square" or "" (no denial).
-    deny_at_s: denial start, after the start of the phase it is in (for "square" with ``deny_lap`` > 0: after
-    the start of that lap). deny_s: denial length. recover_s: flight after re-enabling GPS1 (the scenario
-    ends then, or when the laps are done, whichever is later).
+    hover_s: hover after the climb, before the route (or the whole hover when ``laps`` is 0). route: "square" or
+    "survey" (a lawnmower of ``side_m`` lines ``side_m / 4`` apart), flown ``laps`` times (99: until the scripted end).
+    deny_in: "hover", "route" or "" (no denial). deny_at_s: denial start after the start of that phase (for "route"
+    with ``deny_lap`` > 0: after the start of that lap; a denial in the hover at ``hover_s`` - 0.5 s has the vehicle
+    leave its hover half a second into the outage). deny_s: denial length. recover_s: flight after GPS1 is back (the
+    scenario ends then, or when the laps are done, whichever is later). wind_mps, turb_mps: SITL's wind
+    (SIM_WIND_SPD from ``wind_dir_deg``, SIM_WIND_TURB); 0 is calm.
     """
 
     name: str
     hover_s: float = 20.0
+    route: str = "square"
     laps: int = 1
     deny_in: str = ""
     deny_at_s: float = 0.0
@@ -56,34 +59,62 @@ class Scenario:
     side_m: float = 100.0
     speed_mps: float = 8.0
     alt_m: float = 20.0
+    wind_mps: float = 0.0
+    turb_mps: float = 0.0
+    wind_dir_deg: float = 200.0
 
     @property
     def denies(self) -> bool:
         return bool(self.deny_in) and self.deny_s > 0
 
+    def sim_params(self) -> dict[str, float]:
+        """SITL's wind for this scenario (set in both arms)."""
+        return {"SIM_WIND_SPD": self.wind_mps, "SIM_WIND_DIR": self.wind_dir_deg, "SIM_WIND_TURB": self.turb_mps}
+
 
 def _scenarios() -> dict[str, Scenario]:
-    out = {"healthy": Scenario("healthy", hover_s=20.0, laps=1)}
-    for d in (10, 30, 60):
-        out[f"hover-deny-{d}"] = Scenario(f"hover-deny-{d}", hover_s=15.0, laps=0, deny_in="hover", deny_at_s=15.0,
-                                          deny_s=d, recover_s=30.0)
-        out[f"square-deny-{d}"] = Scenario(f"square-deny-{d}", hover_s=10.0, laps=99, deny_in="square", deny_at_s=10.0,
-                                           deny_s=d, recover_s=30.0)
-    out["survey-deny-45"] = Scenario("survey-deny-45", hover_s=10.0, laps=4, deny_in="square", deny_lap=3,
-                                     deny_at_s=5.0, deny_s=45.0, recover_s=30.0)
-    out["recovery"] = Scenario("recovery", hover_s=10.0, laps=99, deny_in="square", deny_at_s=10.0, deny_s=20.0,
-                               recover_s=90.0)
-    out["hover-short"] = Scenario("hover-short", hover_s=30.0, laps=0)
+    S = Scenario
+    out = {
+        "healthy": S("healthy", hover_s=20.0, laps=1),
+        "hover-short": S("hover-short", hover_s=30.0, laps=0),
+    }
+    for d in (30, 60):
+        # (a) after one manoeuvring lap: GPS1 lost 1 s into the second lap, the laps go on
+        out[f"lap-deny-{d}"] = S(f"lap-deny-{d}", hover_s=10.0, laps=99, deny_in="route", deny_lap=2, deny_at_s=1.0,
+                                 deny_s=d)
+        # (d) on the third line of a lawnmower survey
+        out[f"survey-deny-{d}"] = S(f"survey-deny-{d}", hover_s=10.0, route="survey", side_m=160.0, laps=99,
+                                    deny_in="route", deny_at_s=50.0, deny_s=d)
+    # the suite's short SITL test: a smaller lap, a 20 s denial
+    out["lap-deny-20-short"] = S("lap-deny-20-short", hover_s=5.0, laps=99, deny_in="route", deny_lap=2, deny_at_s=1.0,
+                                 deny_s=20, recover_s=10.0, side_m=60.0)
+    out["lap-deny-30-10mps"] = S("lap-deny-30-10mps", hover_s=10.0, laps=99, deny_in="route", deny_lap=2,
+                                 deny_at_s=1.0, deny_s=30, speed_mps=10.0)
+    out["lap-deny-30-wind"] = S("lap-deny-30-wind", hover_s=10.0, laps=99, deny_in="route", deny_lap=2, deny_at_s=1.0,
+                                deny_s=30, wind_mps=6.0, turb_mps=2.0)
+    # (b) only a short hover after take-off, (c) a long hover: GPS1 lost just before the vehicle sets off on its laps
+    out["short-hover-deny-30"] = S("short-hover-deny-30", hover_s=10.0, laps=99, deny_in="hover", deny_at_s=9.5,
+                                   deny_s=30)
+    out["short-hover-deny-30-wind"] = S("short-hover-deny-30-wind", hover_s=10.0, laps=99, deny_in="hover",
+                                        deny_at_s=9.5, deny_s=30, wind_mps=6.0, turb_mps=2.0)
+    out["long-hover-deny-30"] = S("long-hover-deny-30", hover_s=90.0, laps=99, deny_in="hover", deny_at_s=89.5,
+                                  deny_s=30)
+    out["short-hover-deny-30-10mps"] = S("short-hover-deny-30-10mps", hover_s=10.0, laps=99, deny_in="hover",
+                                         deny_at_s=9.5, deny_s=30, speed_mps=10.0)
     return out
 
 
 SCENARIOS = _scenarios()
-DEFAULT_SCENARIOS = ["healthy", "hover-deny-30", "square-deny-30"]
+DEFAULT_SCENARIOS = ["lap-deny-30", "short-hover-deny-30"]
 
 
-def square_corners(side_m: float) -> list[tuple[float, float]]:
-    """North/east offsets of the square's corners from its start, flown in order and closed."""
-    return [(side_m, 0.0), (side_m, side_m), (0.0, side_m), (0.0, 0.0)]
+def route_corners(sc: Scenario) -> list[tuple[float, float]]:
+    """North/east offsets of the route's corners from its start, flown in order and closed."""
+    s = sc.side_m
+    if sc.route == "survey":
+        w = s / 4.0
+        return [(s, 0.0), (s, w), (0.0, w), (0.0, 2 * w), (s, 2 * w), (s, 3 * w), (0.0, 3 * w), (0.0, 0.0)]
+    return [(s, 0.0), (s, s), (0.0, s), (0.0, 0.0)]
 
 
 # -- the flight log ------------------------------------------------------------------------------------------------
@@ -259,14 +290,14 @@ def _window(rows, t0: float, t1: float):
 
 
 # -- phases -----------------------------------------------------------------------------------------------------------
-PHASES = ("hover", "square", "denial", "recovery")
+PHASES = ("hover", "route", "denial", "recovery")
 
 
 def phase_intervals(marks: dict[str, float]) -> dict[str, tuple[float, float]]:
     """Non-overlapping [t0, t1) of each phase from the driver's marks.
 
-    Marks: hover (climb done), square (square started), deny_on, deny_off, end. Hover and square stop at the
-    denial; everything after the re-enable is recovery.
+    Marks: hover (climb done), route (route started), deny_on, deny_off, end. Hover and route stop at the denial;
+    everything after the re-enable is recovery.
     """
     end = marks.get("end")
     if end is None:
@@ -275,11 +306,11 @@ def phase_intervals(marks: dict[str, float]) -> dict[str, tuple[float, float]]:
     out: dict[str, tuple[float, float]] = {}
     cut = deny_on if deny_on is not None else end
     if "hover" in marks:
-        h1 = min(marks.get("square", end), cut)
+        h1 = min(marks.get("route", end), cut)
         if h1 > marks["hover"]:
             out["hover"] = (marks["hover"], h1)
-    if "square" in marks and cut > marks["square"]:
-        out["square"] = (marks["square"], cut)
+    if "route" in marks and cut > marks["route"]:
+        out["route"] = (marks["route"], cut)
     if deny_on is not None:
         off = deny_off if deny_off is not None else end
         out["denial"] = (deny_on, off)
@@ -316,9 +347,34 @@ def _nearest(t: np.ndarray, v: np.ndarray, at: float, tol_s: float) -> float:
     return float(v[i]) if abs(t[i] - at) <= tol_s else math.nan
 
 
+def error_vectors(log: FlightLog) -> tuple[np.ndarray, np.ndarray]:
+    """(t, north/east EKF error vectors (m)) at every GLOBAL_POSITION_INT with truth around it."""
+    if not log.ekf:
+        return np.zeros(0), np.zeros((0, 2))
+    a = np.asarray(log.ekf, float)
+    tl, tn = truth_at(log.truth, a[:, 0])
+    ok = np.isfinite(tl)
+    lat0 = float(np.nanmean(tl)) if ok.any() else 0.0
+    dn = np.radians(a[:, 1] - tl) * EARTH_R_M
+    de = np.radians(a[:, 2] - tn) * EARTH_R_M * math.cos(math.radians(lat0))
+    return a[ok, 0], np.stack([dn[ok], de[ok]], axis=1)
+
+
+def return_jump(log: FlightLog, t_back: float, window_s: float = 10.0) -> float:
+    """The largest step of the EKF's position relative to the truth between two consecutive GLOBAL_POSITION_INT in the
+    ``window_s`` after GNSS came back (``t_back``): the jump a vehicle makes when its estimate snaps to the receiver
+    (the truth's own motion between the samples is taken out). NaN without samples."""
+    t, ev = error_vectors(log)
+    sel = (t >= t_back - 0.5) & (t <= t_back + window_s)
+    if sel.sum() < 2:
+        return math.nan
+    return float(np.max(np.hypot(*np.diff(ev[sel], axis=0).T)))
+
+
 # -- status text, modes, failsafes -------------------------------------------------------------------------------------
 FAILSAFE_RE = re.compile(r"^EKF Failsafe(?!.*Cleared)", re.I)
 VARIANCE_RE = re.compile(r"^EKF variance", re.I)
+DEAD_RECKONING_RE = re.compile(r"^Dead Reckoning started", re.I)
 ARM_REFUSAL_RE = re.compile(r"^(PreArm|Arm):", re.I)
 
 
@@ -336,6 +392,22 @@ def first_mode(log: FlightLog, mode: int, after: float) -> float | None:
     return None
 
 
+def first_mode_change(log: FlightLog, after: float, mode: int = MODE_GUIDED) -> tuple[float, int] | None:
+    """The first time after ``after`` the vehicle left ``mode`` (a failsafe's LAND or RTL), and the mode it took."""
+    for t, m, _armed in log.modes:
+        if math.isfinite(t) and t >= after and m != mode:
+            return t, m
+    return None
+
+
+def mode_events(log: FlightLog, after: float) -> list[tuple[float, str]]:
+    """Every mode change and failsafe or dead-reckoning message after ``after``: (time, text), in time order."""
+    out = [(t, f"mode {COPTER_MODES.get(m, m)}") for t, m, _a in log.modes if math.isfinite(t) and t >= after]
+    pats = (FAILSAFE_RE, DEAD_RECKONING_RE, re.compile(r"^Dead Reckoning timeout", re.I))
+    out += [(t, txt) for t, _s, txt in log.texts if math.isfinite(t) and t >= after and any(p.search(txt) for p in pats)]
+    return sorted(out)
+
+
 def arm_refusals(log: FlightLog) -> list[str]:
     """Distinct PreArm/Arm refusal texts, in order of first appearance."""
     seen: list[str] = []
@@ -350,78 +422,101 @@ def fix_counts(log: FlightLog, instance: int, t0: float = -math.inf, t1: float =
 
 
 # -- the companion's own solution ----------------------------------------------------------------------------------------
-def companion_error(records: list[dict], truth) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(boot time, error, fix_type) of every GPS_INPUT the companion sent, against the truth at the time it claims
-    (``time_boot_us``: the autopilot boot time of the state the message describes)."""
+def companion_error(records: list[dict], truth) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(boot time, error, fix_type, stated h_acc) of every GPS_INPUT the companion sent, against the truth at the time
+    it claims (``time_boot_us``: the autopilot boot time of the state the message describes)."""
     recs = [r for r in records if r.get("sent") and r.get("lat_deg") is not None and r.get("time_boot_us") is not None]
     if not recs:
-        return np.zeros(0), np.zeros(0), np.zeros(0, int)
+        return np.zeros(0), np.zeros(0), np.zeros(0, int), np.zeros(0)
     t = np.array([r["time_boot_us"] / 1e6 for r in recs])
     err = horizontal_error(t, [r["lat_deg"] for r in recs], [r["lon_deg"] for r in recs], truth)
     fx = np.array([int(r["fix_type"]) for r in recs])
+    hacc = np.array([float(r.get("h_acc_m") or math.nan) for r in recs])
     ok = np.isfinite(err)
-    return t[ok], err[ok], fx[ok]
+    return t[ok], err[ok], fx[ok], hacc[ok]
 
 
 # -- one arm's result -------------------------------------------------------------------------------------------------
 @dataclass
 class ArmResult:
     scenario: str
-    arm: str  # "A" (ArduPilot alone) or "B" (+ companion)
+    arm: str  # "A" (ArduPilot alone), "AD" (alone with drag fusion and the dead-reckoning failsafe), "B" (+ companion)
     armed: bool
     arm_time_s: float  # boot seconds at arming (nan: never)
     refusals: list[str]
     phases: dict[str, tuple[float, float, int]]
     marks_err: list[tuple[float, float]]
-    failsafe_s: float  # after deny_on; nan: none
+    failsafe_s: float  # EKF failsafe after deny_on; nan: none
     variance_s: float
     land_s: float
+    left_guided_s: float  # the vehicle left GUIDED (a failsafe's LAND or RTL) after deny_on; nan: kept flying
+    dead_reckoning_s: float  # ArduPilot said "Dead Reckoning started" after deny_on
+    events: list[tuple[float, str]]  # mode changes and failsafe messages, time after deny_on
     gps2_fix: dict[int, int]
     gps2_fix_denial: dict[int, int]
     sent_fix: dict[int, int]
     own_err_at: dict[float, float]
     own_healthy_mean: float
+    within_2hacc: float  # share of the fixes sent with a 2D/3D fix whose error is within 2x their h_acc
+    fixes_with_hacc: int  # how many that share is of
+    return_jump_m: float  # the EKF's largest step when GPS1 came back
+    last_hacc_m: float  # the companion's last stated h_acc with a 2D/3D fix before GPS1 came back (nan: none sent)
     t_err: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
     err: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
     own_t: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
     own_err: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
+    own_hacc: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
+    own_fix: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0, int))
     deny_on: float = math.nan
-    ekf_lag_s: float = math.nan  # best_lag of the EKF over the square before any denial
+    ekf_lag_s: float = math.nan  # best_lag of the EKF over the route before any denial
     ekf_lag_err: float = math.nan
     own_lag_s: float = math.nan  # best_lag of the companion's GPS_INPUT (vs the time it claims) over the same window
     own_lag_err: float = math.nan
+    takeover: str = ""  # the companion's decision at the loss (its /inject/state reason), "" when none was recorded
+    trust: dict = field(default_factory=dict)  # its trust verdict at the loss (companion.nav.trust.TrustVerdict)
+    run: int = 1  # which repetition of the scenario
+    imu_coalesced: tuple[int, int] = (0, 0)  # the companion's IMU samples coalesced / taken in while behind its link
     notes: list[str] = field(default_factory=list)
 
 
 OWN_MARKS = (10.0, 30.0, 60.0)
 
 
+def _since(t: float | None, t0: float) -> float:
+    return (t - t0) if t is not None else math.nan
+
+
 def analyse(scenario: Scenario, arm: str, log: FlightLog, records: list[dict] | None = None) -> ArmResult:
     t, err = ekf_error(log)
     iv = phase_intervals(log.marks)
     deny_on = log.marks.get("deny_on", math.nan)
+    deny_off = log.marks.get("deny_off", math.nan)
     have_deny = math.isfinite(deny_on)
     until = (log.marks.get("end", deny_on) - deny_on) if have_deny else 0.0
     fs = first_text(log, FAILSAFE_RE, deny_on) if have_deny else None
     var = first_text(log, VARIANCE_RE, deny_on) if have_deny else None
+    dr = first_text(log, DEAD_RECKONING_RE, deny_on) if have_deny else None
     land = first_mode(log, MODE_LAND, deny_on) if have_deny else None
+    left = first_mode_change(log, deny_on) if have_deny else None
     arm_t = next((tt for tt, _m, a in log.modes if a), math.nan)
-    own_t, own_err, own_fx = companion_error(records or [], log.truth)
+    own_t, own_err, own_fx, own_hacc = companion_error(records or [], log.truth)
     own_at = {}
     if have_deny:
         for off in OWN_MARKS:
             own_at[off] = _nearest(own_t, own_err, deny_on + off, 0.5)
     healthy_end = deny_on if have_deny else log.marks.get("end", math.inf)
     sel = (own_t >= log.marks.get("hover", math.inf)) & (own_t < healthy_end)
-    off = log.marks.get("deny_off", math.inf)
+    used = own_fx >= 2  # what ArduPilot takes as a fix
+    ok_h = used & np.isfinite(own_hacc) & (own_hacc > 0)
+    before_back = ok_h & (own_t < deny_off) if math.isfinite(deny_off) else ok_h
     lag = (math.nan, math.nan)
     own_lag = (math.nan, math.nan)
-    if "square" in iv:
-        w = _window(log.ekf, *iv["square"])
+    if "route" in iv:
+        w = _window(log.ekf, *iv["route"])
         if len(w):
             lag = best_lag(w[:, 0], w[:, 1], w[:, 2], log.truth)
         recs = [r for r in (records or []) if r.get("sent") and r.get("time_boot_us") is not None
-                and iv["square"][0] <= r["time_boot_us"] / 1e6 < iv["square"][1]]
+                and iv["route"][0] <= r["time_boot_us"] / 1e6 < iv["route"][1]]
         if recs:
             own_lag = best_lag([r["time_boot_us"] / 1e6 for r in recs], [r["lat_deg"] for r in recs],
                                [r["lon_deg"] for r in recs], log.truth)
@@ -429,136 +524,17 @@ def analyse(scenario: Scenario, arm: str, log: FlightLog, records: list[dict] | 
         scenario=scenario.name, arm=arm, armed=math.isfinite(arm_t), arm_time_s=arm_t, refusals=arm_refusals(log),
         phases=phase_stats(t, err, iv),
         marks_err=error_at_marks(t, err, deny_on, until) if have_deny else [],
-        failsafe_s=(fs[0] - deny_on) if fs else math.nan, variance_s=(var[0] - deny_on) if var else math.nan,
-        land_s=(land - deny_on) if land is not None else math.nan,
-        gps2_fix=fix_counts(log, 2), gps2_fix_denial=fix_counts(log, 2, deny_on, off) if have_deny else {},
+        failsafe_s=_since(fs[0] if fs else None, deny_on), variance_s=_since(var[0] if var else None, deny_on),
+        land_s=_since(land, deny_on), left_guided_s=_since(left[0] if left else None, deny_on),
+        dead_reckoning_s=_since(dr[0] if dr else None, deny_on),
+        events=[(tt - deny_on, txt) for tt, txt in mode_events(log, deny_on)] if have_deny else [],
+        gps2_fix=fix_counts(log, 2), gps2_fix_denial=fix_counts(log, 2, deny_on, deny_off) if have_deny else {},
         sent_fix=dict(sorted(Counter(int(f) for f in own_fx).items())), own_err_at=own_at,
         own_healthy_mean=float(own_err[sel].mean()) if sel.any() else math.nan,
-        t_err=t, err=err, own_t=own_t, own_err=own_err, deny_on=deny_on,
+        within_2hacc=float(np.mean(own_err[ok_h] <= 2.0 * own_hacc[ok_h])) if ok_h.any() else math.nan,
+        fixes_with_hacc=int(ok_h.sum()),
+        return_jump_m=return_jump(log, deny_off) if math.isfinite(deny_off) else math.nan,
+        last_hacc_m=float(own_hacc[before_back][-1]) if before_back.any() else math.nan,
+        t_err=t, err=err, own_t=own_t, own_err=own_err, own_hacc=own_hacc, own_fix=own_fx, deny_on=deny_on,
         ekf_lag_s=lag[0], ekf_lag_err=lag[1], own_lag_s=own_lag[0], own_lag_err=own_lag[1],
     )
-
-
-# -- report -----------------------------------------------------------------------------------------------------------
-ARM_NAMES = {"A": "ArduPilot alone", "B": "+ companion (GPS2)"}
-
-
-def _f(v: float, nd: int = 2) -> str:
-    return "—" if v is None or not math.isfinite(v) else f"{v:.{nd}f}"
-
-
-def _fixes(d: dict[int, int]) -> str:
-    return " ".join(f"{k}:{v}" for k, v in d.items()) if d else "—"
-
-
-def md(header: list[str], rows: list[list[str]]) -> str:
-    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
-    return "\n".join(out)
-
-
-def phase_table(results: list[ArmResult]) -> str:
-    rows = []
-    for r in results:
-        cells = [r.scenario, ARM_NAMES.get(r.arm, r.arm), "yes" if r.armed else "NO"]
-        for p in PHASES:
-            s = r.phases.get(p)
-            cells.append(f"{_f(s[0])} / {_f(s[1])}" if s else "")
-        cells += [_f(r.variance_s, 1), _f(r.failsafe_s, 1), _f(r.land_s, 1)]
-        rows.append(cells)
-    return md(["scenario", "arm", "armed", "hover mean / max (m)", "square mean / max (m)", "denial mean / max (m)",
-               "recovery mean / max (m)", "EKF variance (+s)", "EKF failsafe (+s)", "LAND (+s)"], rows)
-
-
-def marks_table(results: list[ArmResult]) -> str:
-    denied = [r for r in results if r.marks_err]
-    if not denied:
-        return ""
-    n = max(len(r.marks_err) for r in denied)
-    header = ["scenario", "arm"] + [f"+{int(k * MARK_STEP_S)}" for k in range(n)]
-    rows = []
-    for r in denied:
-        vals = [_f(e, 1) for _o, e in r.marks_err]
-        rows.append([r.scenario, r.arm] + vals + [""] * (n - len(vals)))
-    return md(header, rows)
-
-
-def companion_table(results: list[ArmResult]) -> str:
-    rows = []
-    for r in results:
-        if r.arm != "B":
-            continue
-        rows.append([r.scenario, _fixes(r.sent_fix), _fixes(r.gps2_fix), _fixes(r.gps2_fix_denial), _f(r.own_healthy_mean)]
-                    + [_f(r.own_err_at.get(o, math.nan), 1) for o in OWN_MARKS])
-    if not rows:
-        return ""
-    return md(["scenario", "fix types sent (type:count)", "GPS2_RAW fix types (whole flight)",
-               "GPS2_RAW during denial", "own error before denial, mean (m)"]
-              + [f"own error +{int(o)} s (m)" for o in OWN_MARKS], rows)
-
-
-def lag_table(results: list[ArmResult]) -> str:
-    rows = [[r.scenario, ARM_NAMES.get(r.arm, r.arm), _f(r.ekf_lag_s), _f(r.ekf_lag_err),
-             _f(r.own_lag_s) if r.arm == "B" else "", _f(r.own_lag_err) if r.arm == "B" else ""]
-            for r in results if math.isfinite(r.ekf_lag_s)]
-    if not rows:
-        return ""
-    return md(["scenario", "arm", "EKF delay vs truth (s)", "EKF error at that delay (m)",
-               "GPS_INPUT delay vs its time_usec (s)", "GPS_INPUT error at that delay (m)"], rows)
-
-
-def arming_lines(results: list[ArmResult]) -> str:
-    lines = []
-    for r in results:
-        ref = "; ".join(r.refusals[:4]) if r.refusals else "none"
-        lines.append(f"- {r.scenario} {r.arm}: armed {'yes' if r.armed else 'NO'} "
-                     f"(boot +{_f(r.arm_time_s, 1)} s); refusals seen: {ref}" + (f"; {'; '.join(r.notes)}" if r.notes else ""))
-    return "\n".join(lines)
-
-
-LATLON_STEP_M = 0.011  # GLOBAL_POSITION_INT's lat/lon step (1e-7 deg) in metres
-FAILSAFE_CHECK_S = 0.1  # ArduCopter's EKF failsafe check period
-
-
-def ab_verdicts(results: list[ArmResult]) -> list[str]:
-    """The issue's targets, checked per scenario where both arms ran."""
-    by = {(r.scenario, r.arm): r for r in results}
-    out = []
-    pooled: dict[str, list[tuple[float, float]]] = {}
-    for (sc, arm), a in by.items():
-        if arm != "A" or (sc, "B") not in by:
-            continue
-        b = by[(sc, "B")]
-        for p in ("hover", "square"):
-            if p in a.phases and p in b.phases and math.isfinite(a.phases[p][0]) and math.isfinite(b.phases[p][0]):
-                ma, mb = a.phases[p][0], b.phases[p][0]
-                pooled.setdefault(p, []).append((ma, mb))
-                ratio = mb / max(ma, 1e-6)
-                # a hover's mean error is ~1-2 cm: a ratio of such means is the resolution of GLOBAL_POSITION_INT
-                # (1e-7 deg, 1.1 cm), not a difference between the arms
-                verdict = "met" if ratio <= 1.1 else ("met (difference below one 1e-7 deg step, 1.1 cm)"
-                                                      if mb - ma < LATLON_STEP_M else "NOT met")
-                out.append(f"- {sc}, {p}: mean EKF error B/A = {ratio:.1f}x ({mb:.3f} vs {ma:.3f} m; target <= 1.1x): "
-                           f"{verdict}")
-        if a.marks_err and b.marks_err:
-            worse = [(o, eb - ea) for (o, ea), (_o, eb) in zip(a.marks_err, b.marks_err)
-                     if math.isfinite(ea) and math.isfinite(eb) and eb > ea + 0.5]
-            out.append(f"- {sc}, denial: 5 s marks where B > A + 0.5 m: {len(worse)} of {len(a.marks_err)}"
-                       + (f" (worst +{int(max(worse, key=lambda w: w[1])[0])} s: +{max(w[1] for w in worse):.1f} m)" if worse else ""))
-            fa, fb = a.failsafe_s, b.failsafe_s
-            # ArduCopter checks the EKF failsafe at 10 Hz: times within one check period are the same failsafe
-            if math.isfinite(fb) and (not math.isfinite(fa) or fb < fa - FAILSAFE_CHECK_S):
-                out.append(f"- {sc}: failsafe with the companion earlier than alone (+{fb:.2f} s vs +{_f(fa, 2)} s)")
-            elif math.isfinite(fa) and not math.isfinite(fb):
-                out.append(f"- {sc}: no EKF failsafe with the companion (alone: +{fa:.1f} s)")
-            if not math.isfinite(fb):
-                within = max((eb for _o, eb in b.marks_err if math.isfinite(eb)), default=math.nan)
-                out.append(f"- {sc}: kept flying (no failsafe), EKF error <= {within:.1f} m at every 5 s mark "
-                           f"(target <= 3 m: {'met' if within <= 3.0 else 'NOT met'})")
-    for p, pairs in pooled.items():
-        if len(pairs) > 1:  # one scenario's ratio carries the run-to-run spread of a 0.15 m mean; the pool less so
-            ma, mb = (float(np.mean(x)) for x in zip(*pairs))
-            out.append(f"- all {len(pairs)} scenarios pooled, {p}: mean EKF error B/A = {mb / max(ma, 1e-6):.2f}x "
-                       f"({mb:.3f} vs {ma:.3f} m; A's scenario means span {min(x[0] for x in pairs):.3f}-"
-                       f"{max(x[0] for x in pairs):.3f} m)")
-    return out

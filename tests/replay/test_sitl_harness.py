@@ -1,4 +1,5 @@
-"""The SITL A/B harness's pure logic (replay/live/sitl_core.py) against scripted message streams: no SITL."""
+"""The SITL A/B harness's pure logic (replay/live/sitl_core.py, its tables and verdicts in sitl_report.py, the
+parameter checks of sitl_vehicle.py) against scripted message streams: no SITL."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ import numpy as np
 import pytest
 
 from replay.live import sitl_core as core
+from replay.live import sitl_report as report
+from replay.live.sitl_vehicle import param_mismatches, suggested_drag
 
 LAT0, LON0 = -35.0, 149.0
 M_PER_DEG = math.radians(1) * core.EARTH_R_M
@@ -69,7 +72,7 @@ def scripted_flight(ekf_offset_e, deny_on=40.0, deny_off=70.0, end=100.0, dt=0.1
             log.on_message(text("EKF Failsafe: changed to LAND Mode"))
             log.on_message(hb(core.MODE_LAND))
         t = round(t + dt, 6)
-    log.marks.update(hover=5.0, square=20.0, deny_on=deny_on, deny_off=deny_off, end=end)
+    log.marks.update(hover=5.0, route=20.0, deny_on=deny_on, deny_off=deny_off, end=end)
     return log
 
 
@@ -106,11 +109,11 @@ def test_simstate_takes_the_newest_boot_time():
 
 
 def test_phase_intervals_cut_at_the_denial():
-    iv = core.phase_intervals({"hover": 5.0, "square": 20.0, "deny_on": 40.0, "deny_off": 70.0, "end": 100.0})
-    assert iv == {"hover": (5.0, 20.0), "square": (20.0, 40.0), "denial": (40.0, 70.0), "recovery": (70.0, 100.0)}
+    iv = core.phase_intervals({"hover": 5.0, "route": 20.0, "deny_on": 40.0, "deny_off": 70.0, "end": 100.0})
+    assert iv == {"hover": (5.0, 20.0), "route": (20.0, 40.0), "denial": (40.0, 70.0), "recovery": (70.0, 100.0)}
     iv = core.phase_intervals({"hover": 5.0, "deny_on": 20.0, "deny_off": 50.0, "end": 80.0})  # denied in the hover
     assert iv == {"hover": (5.0, 20.0), "denial": (20.0, 50.0), "recovery": (50.0, 80.0)}
-    assert core.phase_intervals({"hover": 5.0, "square": 20.0, "end": 60.0}) == {"hover": (5.0, 20.0), "square": (20.0, 60.0)}
+    assert core.phase_intervals({"hover": 5.0, "route": 20.0, "end": 60.0}) == {"hover": (5.0, 20.0), "route": (20.0, 60.0)}
     assert core.phase_intervals({"hover": 5.0}) == {}  # never finished: no phase
 
 
@@ -124,9 +127,9 @@ def test_phase_stats_and_5s_marks():
         return 0.2
 
     log = scripted_flight(off)
-    r = core.analyse(core.SCENARIOS["square-deny-30"], "A", log)
+    r = core.analyse(core.SCENARIOS["lap-deny-30"], "A", log)
     assert r.phases["hover"][0] == pytest.approx(1.0, abs=0.02)
-    assert r.phases["square"][1] == pytest.approx(1.0, abs=0.02)
+    assert r.phases["route"][1] == pytest.approx(1.0, abs=0.02)
     assert r.phases["denial"][1] == pytest.approx(15.95, abs=0.1)
     assert r.phases["recovery"][0] == pytest.approx(0.2, abs=0.02)
     marks = dict(r.marks_err)
@@ -141,17 +144,17 @@ def test_failsafe_and_land_timing_after_the_denial():
     log = scripted_flight(lambda t: 0.0, failsafe_at=48.0)
     log.texts.insert(0, (2.0, 2, "EKF Failsafe"))  # before the denial: not this denial's failsafe
     log.on_message(text("EKF Failsafe Cleared"))
-    r = core.analyse(core.SCENARIOS["square-deny-30"], "A", log)
+    r = core.analyse(core.SCENARIOS["lap-deny-30"], "A", log)
     assert r.failsafe_s == pytest.approx(8.0, abs=0.06)
     assert r.variance_s == pytest.approx(8.0, abs=0.06)
     assert r.land_s == pytest.approx(8.0, abs=0.06)
-    assert "EKF failsafe" in core.phase_table([r]).replace("EKF Failsafe", "EKF failsafe")
+    assert "EKF failsafe" in report.phase_table([r]).replace("EKF Failsafe", "EKF failsafe")
 
 
 def test_no_failsafe_is_nan_and_shown_as_dash():
-    r = core.analyse(core.SCENARIOS["square-deny-30"], "B", scripted_flight(lambda t: 0.0))
+    r = core.analyse(core.SCENARIOS["lap-deny-30"], "B", scripted_flight(lambda t: 0.0))
     assert math.isnan(r.failsafe_s) and math.isnan(r.land_s)
-    assert "| — | — | — |" in core.phase_table([r])
+    assert "| — | — | — |" in report.phase_table([r])
 
 
 def test_modes_keep_changes_only_and_ignore_other_components():
@@ -169,7 +172,7 @@ def test_arming_refusals_deduplicated():
         log.on_message(text(s))
     assert core.arm_refusals(log) == ["PreArm: GPS 2: Bad fix", "Arm: GPS 2: Bad fix"]
     r = core.analyse(core.SCENARIOS["healthy"], "B", log)
-    assert not r.armed and "refusals seen: PreArm: GPS 2: Bad fix" in core.arming_lines([r])
+    assert not r.armed and "refusals seen: PreArm: GPS 2: Bad fix" in report.arming_lines([r])
 
 
 def test_gps_fix_types_counted_per_instance_and_window():
@@ -192,65 +195,111 @@ def test_companion_error_against_the_time_it_claims():
         late = 0.3  # the record says it describes t; its position is truth at t - 0.3 (5 m/s -> 1.5 m)
         m = gpi(t, n=5.0 * (t - late))
         recs.append({"sent": True, "time_boot_us": int(t * 1e6), "lat_deg": m.lat * 1e-7, "lon_deg": m.lon * 1e-7,
-                     "fix_type": 3 if t < 50 else 2})
+                     "fix_type": 3 if t < 50 else 2, "h_acc_m": 1.0 if t < 60 else 0.5})
     recs.append({"sent": False, "time_boot_us": 10_000_000, "lat_deg": 0.0, "lon_deg": 0.0, "fix_type": 3})
-    r = core.analyse(core.SCENARIOS["square-deny-30"], "B", log, recs)
+    r = core.analyse(core.SCENARIOS["lap-deny-30"], "B", log, recs)
     assert r.own_healthy_mean == pytest.approx(1.5, abs=0.02)
     assert r.own_err_at[10.0] == pytest.approx(1.5, abs=0.02)
     assert r.sent_fix == {2: 250, 3: 250}
-    table = core.companion_table([r])
-    assert "3:250" in table and "1.5" in table
+    # 1.5 m of error: within 2 x 1.0 m before t = 60 s (300 fixes), outside 2 x 0.5 m after (200)
+    assert r.fixes_with_hacc == 500 and r.within_2hacc == pytest.approx(300 / 500)
+    assert r.last_hacc_m == pytest.approx(0.5)  # the last fix sent before GPS1 came back (t 69.8 s)
+    table = report.companion_table([r])
+    assert "3:250" in table and "1.5" in table and "60.0 % of 500" in table
 
 
-def test_verdicts_compare_the_arms():
-    a = core.analyse(core.SCENARIOS["square-deny-30"], "A", scripted_flight(lambda t: 0.2, failsafe_at=50.0))
-    b = core.analyse(core.SCENARIOS["square-deny-30"], "B",
-                     scripted_flight(lambda t: 2.0 if t < 40 else 2.0 + (t - 40), failsafe_at=45.0))
-    v = "\n".join(core.ab_verdicts([a, b]))
-    assert "square: mean EKF error B/A = 10.0x" in v and "NOT met" in v
-    assert "failsafe with the companion earlier than alone (+5.00 s vs +10.00 s)" in v
-    assert "5 s marks where B > A + 0.5 m" in v
-    assert core.marks_table([a, b]).count("\n") == 3
+def _ab(sc="lap-deny-30", a_off=lambda t: 0.2, b_off=lambda t: 0.2, a_fs=None, b_fs=None, takeover="takeover: fit"):
+    a = core.analyse(core.SCENARIOS[sc], "A", scripted_flight(a_off, failsafe_at=a_fs))
+    b = core.analyse(core.SCENARIOS[sc], "B", scripted_flight(b_off, failsafe_at=b_fs))
+    b.takeover = takeover
+    return a, b, "\n".join(report.ab_verdicts([a, b]))
 
 
-def test_verdicts_tolerate_the_resolution_and_the_failsafe_check_period():
-    """A hover's 1-2 cm mean errors differ by less than GLOBAL_POSITION_INT's 1e-7 deg step; failsafes 0.05 s apart are
-    one ArduCopter check period apart: neither is a difference between the arms. A B arm that never fails is reported
-    with its worst 5 s mark against the 3 m target."""
-    a = core.analyse(core.SCENARIOS["square-deny-30"], "A", scripted_flight(lambda t: 0.010, failsafe_at=50.0))
-    b = core.analyse(core.SCENARIOS["square-deny-30"], "B", scripted_flight(lambda t: 0.016, failsafe_at=49.95))
-    v = "\n".join(core.ab_verdicts([a, b]))
-    assert "hover: mean EKF error B/A" in v and "NOT met" not in v and "met (difference below one 1e-7 deg step" in v
-    assert "earlier than alone" not in v
-    b = core.analyse(core.SCENARIOS["square-deny-30"], "B", scripted_flight(lambda t: 0.05 if t < 40 else 2.5))
-    v = "\n".join(core.ab_verdicts([a, b]))
-    assert "no EKF failsafe with the companion" in v and "kept flying" in v and "(target <= 3 m: met)" in v
-    b = core.analyse(core.SCENARIOS["square-deny-30"], "B", scripted_flight(lambda t: 0.05 if t < 40 else 4.0))
-    assert "(target <= 3 m: NOT met)" in "\n".join(core.ab_verdicts([a, b]))
+def test_verdict_of_a_takeover():
+    """A takeover is judged by its own target: no failsafe and <= 3 m at every 5 s mark of a 30 s denial."""
+    _, _, v = _ab(a_off=lambda t: 0.2 if t < 40 else 0.2 + (t - 40),
+                  b_off=lambda t: 0.05 if t < 40 else 0.05 + 0.065 * (t - 40), a_fs=48.0)
+    assert "took over; no failsafe: yes, EKF error <= 2.0 m at every 5 s mark" in v and "no failsafe: met" in v
+    assert "B vs A: better by > 0.5 m at 6 of 7 denial marks, worse at 0" in v
+    _, _, v = _ab(b_off=lambda t: 0.05 if t < 40 else 4.0)
+    assert "(target <= 3 m, no failsafe: NOT met)" in v and "worse at 7" in v
+    _, _, v = _ab(b_off=lambda t: 0.05, b_fs=50.0)
+    assert "no failsafe: NO" in v and "NOT met" in v
 
 
-def test_verdicts_pool_the_scenarios():
+def test_verdict_of_a_60_s_takeover():
+    _, _, v = _ab("lap-deny-60", b_off=lambda t: 0.1 if t < 40 else 0.1 + 0.1 * (t - 40))
+    assert "flew on 60.0 s of the 60 s denial, <= 4.6 m to +45 s (target >= 45 s at <= 5 m: met)" in v
+    _, _, v = _ab("lap-deny-60", b_off=lambda t: 0.1, b_fs=80.0)
+    assert "flew on 40.0 s of the 60 s denial" in v and "NOT met" in v
+
+
+def test_verdict_when_the_companion_stays_out():
+    """Not fit: never worse than alone by more than 0.5 m at a denial mark, the failsafe no later than alone's (within
+    ArduCopter's 0.1 s check period)."""
+    _, _, v = _ab(a_fs=48.0, b_fs=48.05, takeover="no takeover: manoeuvres 0.3 m/s < 3")
+    assert "companion stayed out (no takeover: manoeuvres 0.3 m/s < 3)" in v and "0 of 7" in v and "(met)" in v
+    _, _, v = _ab(a_fs=48.0, b_fs=49.0, takeover="no takeover: x")
+    assert "(later: NOT met)" in v
+    _, _, v = _ab(b_off=lambda t: 0.2 if t < 50 else 1.0, takeover="no takeover: x")
+    assert "(NOT met)" in v and "worst +10 s: +0.8 m" in v
+
+
+def test_verdicts_pool_the_healthy_flight_and_tolerate_the_resolution():
     runs = []
-    for sc, (ea, eb) in {"square-deny-30": (0.10, 0.13), "square-deny-60": (0.20, 0.19)}.items():
+    for sc, (ea, eb) in {"lap-deny-30": (0.10, 0.13), "lap-deny-60": (0.20, 0.19)}.items():
         runs.append(core.analyse(core.SCENARIOS[sc], "A", scripted_flight(lambda t, e=ea: e)))
         runs.append(core.analyse(core.SCENARIOS[sc], "B", scripted_flight(lambda t, e=eb: e)))
-    v = "\n".join(core.ab_verdicts(runs))
-    means = {r.arm: [] for r in runs}
-    for r in runs:
-        means[r.arm].append(r.phases["square"][0])
-    ratio = np.mean(means["B"]) / np.mean(means["A"])
-    assert f"all 2 scenarios pooled, square: mean EKF error B/A = {ratio:.2f}x" in v and 1.0 < ratio < 1.1
+    v = "\n".join(report.ab_verdicts(runs))
+    means = {arm: np.mean([r.phases["route"][0] for r in runs if r.arm == arm]) for arm in ("A", "B")}
+    ratio = means["B"] / means["A"]  # ~ (0.13 + 0.19) / (0.10 + 0.20), to the 1e-7 deg steps of the positions
+    assert f"2 flights pooled, route B/A: mean EKF error {ratio:.2f}x" in v and "target <= 1.1x: met" in v
+    # 1-2 cm hover errors differ by less than GLOBAL_POSITION_INT's 1e-7 deg step: not a difference between the arms
+    a, b = (core.analyse(core.SCENARIOS["lap-deny-30"], arm, scripted_flight(lambda t, e=e: e))
+            for arm, e in (("A", 0.010), ("B", 0.016)))
+    assert "NOT met" not in "\n".join(x for x in report.ab_verdicts([a, b]) if "healthy" in x)
+
+
+def test_return_jump_is_the_step_of_the_error_not_the_motion():
+    """The vehicle flies 5 m/s; the EKF is 3 m east until GPS1 is back at 70 s, then snaps onto the truth."""
+    log = scripted_flight(lambda t: 3.0 if t < 70.05 else 0.0)
+    assert core.return_jump(log, 70.0) == pytest.approx(3.0, abs=0.02)
+    assert core.return_jump(scripted_flight(lambda t: 3.0), 70.0) < 0.02  # a constant offset is no jump
+
+
+def test_mode_events_and_leaving_guided():
+    log = scripted_flight(lambda t: 0.0, failsafe_at=48.0)
+    log.on_message(text("Dead Reckoning started"))
+    r = core.analyse(core.SCENARIOS["lap-deny-30"], "AD", log)
+    assert r.left_guided_s == pytest.approx(8.0, abs=0.06)
+    assert [txt for _t, txt in r.events][:3] == ["EKF Failsafe: changed to LAND Mode", "mode LAND", "Dead Reckoning started"]
+    assert "+8.0 s mode LAND" in report.events_lines([r])
+
+
+def test_parameters_not_held_are_named():
+    bad = param_mismatches({"WP_SPD": 8.0, "FS_DR_TIMEOUT": 30, "EK3_DRAG_MCOEF": 0.209},
+                           {"WP_SPD": None, "FS_DR_TIMEOUT": 30.0, "EK3_DRAG_MCOEF": 0.20900000631809235})
+    assert bad == ["WP_SPD: unknown to this autopilot (no PARAM_VALUE)"]
+    assert param_mismatches({"X": 1.0}, {"X": 2.0}) == ["X: holds 2, not 1"]
+
+
+def test_drag_coefficients_read_from_sitl_output():
+    out = "Starting sketch 'ArduCopter'\nSuggested EK3_DRAG_BCOEF_* = 17.209, EK3_DRAG_MCOEF = 0.209\nbind port"
+    assert suggested_drag(out) == {"EK3_DRAG_BCOEF_X": 17.209, "EK3_DRAG_BCOEF_Y": 17.209, "EK3_DRAG_MCOEF": 0.209}
+    assert suggested_drag("no such line") is None
 
 
 def test_scenarios_are_consistent():
     for name, sc in core.SCENARIOS.items():
         assert sc.name == name
         if sc.denies:
-            assert sc.deny_in in ("hover", "square") and sc.recover_s > 0
+            assert sc.deny_in in ("hover", "route") and sc.recover_s > 0
+            if sc.deny_in == "hover":
+                assert sc.deny_at_s < sc.hover_s  # denied before the vehicle leaves its hover
         if sc.deny_lap:
             assert 0 < sc.deny_lap <= sc.laps
-    corners = core.square_corners(100.0)
-    assert corners[-1] == (0.0, 0.0) and len(corners) == 4
+        corners = core.route_corners(sc)
+        assert corners[-1] == (0.0, 0.0) and len(corners) in (4, 8)
     for d in core.DEFAULT_SCENARIOS:
         assert d in core.SCENARIOS
 
@@ -265,9 +314,9 @@ def test_best_lag_finds_a_delayed_source():
     d = np.asarray(delayed)
     tau, e = core.best_lag(d[:, 0], d[:, 1], d[:, 2], log.truth)
     assert tau == pytest.approx(0.3, abs=0.011) and e < 0.05
-    r = core.analyse(core.SCENARIOS["square-deny-30"], "A", log)
+    r = core.analyse(core.SCENARIOS["lap-deny-30"], "A", log)
     assert r.ekf_lag_s == pytest.approx(0.0, abs=0.011)
-    assert "EKF delay vs truth" in core.lag_table([r])
+    assert "EKF delay vs truth" in report.lag_table([r])
 
 
 def test_flight_log_round_trips_through_json():
@@ -277,7 +326,7 @@ def test_flight_log_round_trips_through_json():
     log.on_message(Msg("GPS2_RAW", fix_type=3, satellites_visible=10))
     log.note("lap 1")
     back = core.FlightLog.from_dict(json.loads(json.dumps(log.to_dict()).replace("NaN", "null")))
-    a = core.analyse(core.SCENARIOS["square-deny-30"], "A", log)
-    b = core.analyse(core.SCENARIOS["square-deny-30"], "A", back)
-    assert core.phase_table([a]) == core.phase_table([b]) and core.marks_table([a]) == core.marks_table([b])
+    a = core.analyse(core.SCENARIOS["lap-deny-30"], "A", log)
+    b = core.analyse(core.SCENARIOS["lap-deny-30"], "A", back)
+    assert report.phase_table([a]) == report.phase_table([b]) and report.marks_table([a]) == report.marks_table([b])
     assert back.gps[2] == log.gps[2] and back.events == log.events

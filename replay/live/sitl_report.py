@@ -1,0 +1,243 @@
+"""Tables, verdicts and the plot of the SITL A/B harness (replay.live.sitl) from its analysed arms
+(replay.live.sitl_core.ArmResult). Pure apart from the plot and ``write_results``, which writes replay/results."""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from replay.live.sitl_core import MARK_STEP_S, OWN_MARKS, PHASES, SCENARIOS, ArmResult
+
+ARM_NAMES = {"A": "ArduPilot alone", "AD": "alone, drag fusion + DR failsafe", "B": "+ companion (takeover)"}
+ARM_COLOURS = {"A": "tab:blue", "AD": "tab:green", "B": "tab:red"}
+LATLON_STEP_M = 0.011  # GLOBAL_POSITION_INT's lat/lon step (1e-7 deg) in metres
+FAILSAFE_CHECK_S = 0.1  # ArduCopter's EKF failsafe check period
+
+
+def _f(v: float, nd: int = 2) -> str:
+    return "—" if v is None or not math.isfinite(v) else f"{v:.{nd}f}"
+
+
+def _fixes(d: dict[int, int]) -> str:
+    return " ".join(f"{k}:{v}" for k, v in d.items()) if d else "—"
+
+
+def md(header: list[str], rows: list[list[str]]) -> str:
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    return "\n".join(out)
+
+
+def _run(r: ArmResult) -> str:
+    return str(r.run)
+
+
+def phase_table(results: list[ArmResult]) -> str:
+    rows = []
+    for r in results:
+        cells = [r.scenario, _run(r), ARM_NAMES.get(r.arm, r.arm), "yes" if r.armed else "NO"]
+        for p in PHASES:
+            s = r.phases.get(p)
+            cells.append(f"{_f(s[0])} / {_f(s[1])}" if s else "")
+        cells += [_f(r.failsafe_s, 1), _f(r.dead_reckoning_s, 1), _f(r.left_guided_s, 1)]
+        rows.append(cells)
+    return md(["scenario", "run", "arm", "armed", "hover mean / max (m)", "route mean / max (m)",
+               "denial mean / max (m)", "recovery mean / max (m)", "EKF failsafe (+s)", "dead reckoning (+s)",
+               "left GUIDED (+s)"], rows)
+
+
+def marks_table(results: list[ArmResult]) -> str:
+    denied = [r for r in results if r.marks_err]
+    if not denied:
+        return ""
+    n = max(len(r.marks_err) for r in denied)
+    header = ["scenario", "run", "arm"] + [f"+{int(k * MARK_STEP_S)}" for k in range(n)]
+    rows = []
+    for r in denied:
+        vals = [_f(e, 1) for _o, e in r.marks_err]
+        rows.append([r.scenario, _run(r), r.arm] + vals + [""] * (n - len(vals)))
+    return md(header, rows)
+
+
+def events_lines(results: list[ArmResult]) -> str:
+    lines = []
+    for r in results:
+        if r.events:
+            ev = "; ".join(f"+{t:.1f} s {txt}" for t, txt in r.events[:8])
+            lines.append(f"- {r.scenario} run {_run(r)} {r.arm}: {ev}")
+    return "\n".join(lines)
+
+
+def companion_table(results: list[ArmResult]) -> str:
+    rows = []
+    for r in results:
+        if r.arm != "B":
+            continue
+        tr = r.trust
+        trust = (f"{'fit' if tr.get('fit') else 'unfit'}: heading sigma {_f(math.degrees(tr['yaw_sigma_rad']), 1)} deg, "
+                 f"manoeuvres {_f(tr.get('manoeuvre_mps'), 1)} m/s" if tr and tr.get("yaw_sigma_rad") is not None
+                 else "—")
+        rows.append([r.scenario, _run(r), r.takeover or "—", trust, _fixes(r.sent_fix), _fixes(r.gps2_fix_denial),
+                     _f(r.own_healthy_mean)] + [_f(r.own_err_at.get(o, math.nan), 1) for o in OWN_MARKS]
+                    + [f"{_f(100 * r.within_2hacc, 1)} % of {r.fixes_with_hacc}", _f(r.last_hacc_m, 1),
+                       _f(r.return_jump_m, 2), kept_up(r)])
+    if not rows:
+        return ""
+    return md(["scenario", "run", "decision at the loss", "trust at the loss", "fix types sent (type:count)",
+               "GPS2_RAW during denial", "own error before denial, mean (m)"]
+              + [f"own error +{int(o)} s (m)" for o in OWN_MARKS]
+              + ["fixes within 2x h_acc", "last h_acc before GPS1 back (m)", "EKF jump at GPS1 back (m)",
+                 "kept up (IMU samples coalesced)"], rows)
+
+
+#: a companion that coalesced more IMU samples than this (1 s at 50 Hz) fell behind its link: its run is not valid
+MAX_COALESCED = 50
+
+
+def kept_up(r: ArmResult) -> str:
+    n = r.imu_coalesced[0]
+    return f"{'yes' if n <= MAX_COALESCED else 'NO'} ({n})"
+
+
+def lag_table(results: list[ArmResult]) -> str:
+    rows = [[r.scenario, _run(r), ARM_NAMES.get(r.arm, r.arm), _f(r.ekf_lag_s), _f(r.ekf_lag_err),
+             _f(r.own_lag_s) if r.arm == "B" else "", _f(r.own_lag_err) if r.arm == "B" else ""]
+            for r in results if math.isfinite(r.ekf_lag_s)]
+    if not rows:
+        return ""
+    return md(["scenario", "run", "arm", "EKF delay vs truth (s)", "EKF error at that delay (m)",
+               "GPS_INPUT delay vs its time_usec (s)", "GPS_INPUT error at that delay (m)"], rows)
+
+
+def arming_lines(results: list[ArmResult]) -> str:
+    lines = []
+    for r in results:
+        ref = "; ".join(r.refusals[:4]) if r.refusals else "none"
+        lines.append(f"- {r.scenario} run {_run(r)} {r.arm}: armed {'yes' if r.armed else 'NO'} "
+                     f"(boot +{_f(r.arm_time_s, 1)} s); refusals seen: {ref}" + (f"; {'; '.join(r.notes)}" if r.notes else ""))
+    return "\n".join(lines)
+
+
+# -- verdicts against the targets ---------------------------------------------------------------------------------------
+def _denial_marks(r: ArmResult) -> list[tuple[float, float]]:
+    d = SCENARIOS[r.scenario].deny_s if r.scenario in SCENARIOS else math.inf
+    return [(o, e) for o, e in r.marks_err if o <= d + 1e-9]
+
+
+def _takes_over(r: ArmResult) -> bool:
+    return r.takeover.startswith("takeover")
+
+
+def ab_verdicts(results: list[ArmResult]) -> list[str]:
+    """The targets, per scenario and run where the arms ran: healthy flight, the denial after a manoeuvre, the denial
+    where the companion stays out, honesty of the stated accuracy, the return of GNSS; against alone at its best."""
+    by = {(r.scenario, _run(r), r.arm): r for r in results}
+    out: list[str] = []
+    pooled: dict[str, list[tuple[float, float]]] = defaultdict(list)
+    for (sc, run, arm), b in sorted(by.items()):
+        if arm != "B":
+            continue
+        for ref in ("A", "AD"):
+            a = by.get((sc, run, ref))
+            if a is None:
+                continue
+            for p in ("hover", "route"):
+                if p in a.phases and p in b.phases and math.isfinite(a.phases[p][0]) and math.isfinite(b.phases[p][0]):
+                    ma, mb = a.phases[p][0], b.phases[p][0]
+                    pooled[f"{p} B/{ref}"].append((ma, mb))
+            if not (a.marks_err and b.marks_err):
+                continue
+            worse = [(o, eb - ea) for (o, ea), (_o, eb) in zip(_denial_marks(a), _denial_marks(b))
+                     if math.isfinite(ea) and math.isfinite(eb) and eb > ea + 0.5]
+            if _takes_over(b):
+                better = [(o, ea - eb) for (o, ea), (_o, eb) in zip(_denial_marks(a), _denial_marks(b))
+                          if math.isfinite(ea) and math.isfinite(eb) and eb < ea - 0.5]
+                out.append(f"- {sc} run {run}, B vs {ref}: better by > 0.5 m at {len(better)} of "
+                           f"{len(_denial_marks(a))} denial marks, worse at {len(worse)}"
+                           + (f" (worst +{int(max(worse, key=lambda w: w[1])[0])} s: +{max(w[1] for w in worse):.1f} m)"
+                              if worse else "")
+                           + f"; left GUIDED: B {_f(b.left_guided_s, 1)} s, {ref} {_f(a.left_guided_s, 1)} s")
+            else:
+                late = (math.isfinite(b.failsafe_s) and math.isfinite(a.failsafe_s)
+                        and b.failsafe_s > a.failsafe_s + FAILSAFE_CHECK_S)
+                out.append(f"- {sc} run {run}, companion stayed out ({b.takeover or 'no decision recorded'}): "
+                           f"marks worse than {ref} by > 0.5 m: {len(worse)} of {len(_denial_marks(a))}"
+                           + (f" (worst +{int(max(worse, key=lambda w: w[1])[0])} s: +{max(w[1] for w in worse):.1f} m)"
+                              if worse else "")
+                           + f"; EKF failsafe B {_f(b.failsafe_s, 1)} s vs {ref} {_f(a.failsafe_s, 1)} s"
+                           + (" (later: NOT met)" if late else " (met)" if not worse else " (NOT met)"))
+        if _takes_over(b) and b.marks_err:
+            d = SCENARIOS[sc].deny_s if sc in SCENARIOS else math.inf
+            marks = _denial_marks(b)
+            if d <= 30:
+                worst = max((e for _o, e in marks if math.isfinite(e)), default=math.nan)
+                ok = not math.isfinite(b.left_guided_s) and worst <= 3.0
+                out.append(f"- {sc} run {run}: took over; no failsafe: {'yes' if not math.isfinite(b.left_guided_s) else 'NO'}, "
+                           f"EKF error <= {_f(worst, 1)} m at every 5 s mark (target <= 3 m, no failsafe: "
+                           f"{'met' if ok else 'NOT met'})")
+            else:
+                flew = b.left_guided_s if math.isfinite(b.left_guided_s) else d
+                worst45 = max((e for o, e in marks if o <= 45.0 and math.isfinite(e)), default=math.nan)
+                ok = flew >= 45.0 and worst45 <= 5.0
+                out.append(f"- {sc} run {run}: took over; flew on {_f(flew, 1)} s of the {d:g} s denial, <= "
+                           f"{_f(worst45, 1)} m to +45 s (target >= 45 s at <= 5 m: {'met' if ok else 'NOT met'})")
+        if b.fixes_with_hacc:
+            out.append(f"- {sc} run {run}: {100 * b.within_2hacc:.1f} % of {b.fixes_with_hacc} fixes sent within 2x "
+                       f"their h_acc (target >= 95 %: {'met' if b.within_2hacc >= 0.95 else 'NOT met'})")
+        if math.isfinite(b.return_jump_m) and math.isfinite(b.last_hacc_m) and _takes_over(b):
+            out.append(f"- {sc} run {run}: EKF jump at GPS1's return {b.return_jump_m:.2f} m, last stated h_acc "
+                       f"{b.last_hacc_m:.1f} m ({'met' if b.return_jump_m <= b.last_hacc_m else 'NOT met'})")
+    for key, pairs in sorted(pooled.items()):
+        ma, mb = (float(np.mean(x)) for x in zip(*pairs))
+        ratio = mb / max(ma, 1e-6)
+        verdict = "met" if ratio <= 1.1 or mb - ma < LATLON_STEP_M else "NOT met"
+        out.append(f"- healthy flight, {len(pairs)} flights pooled, {key}: mean EKF error {ratio:.2f}x ({mb:.3f} vs "
+                   f"{ma:.3f} m; target <= 1.1x: {verdict})")
+    return out
+
+
+# -- the plot -------------------------------------------------------------------------------------------------------
+def plot(results: list[ArmResult], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    denied = [r for r in results if math.isfinite(r.deny_on)]
+    keys = list(dict.fromkeys((r.scenario, _run(r)) for r in denied))
+    if not keys:
+        return
+    fig, axes = plt.subplots(len(keys), 1, figsize=(12, 3.0 * len(keys)), squeeze=False)
+    for ax, (sc, run) in zip(axes[:, 0], keys):
+        d = SCENARIOS[sc].deny_s
+        ax.axvspan(0, d, color="0.92", label=f"GPS1 denied ({d:g} s)")
+        x0, x1 = -20.0, d + SCENARIOS[sc].recover_s
+        top = 1.0
+        for r in (x for x in denied if x.scenario == sc and _run(x) == run):
+            col = ARM_COLOURS.get(r.arm, "k")
+            tx = r.t_err - r.deny_on
+            ax.plot(tx, r.err, color=col, lw=1.2, label=f"EKF, {ARM_NAMES.get(r.arm, r.arm)}")
+            sel = (tx >= x0) & (tx <= x1)
+            top = max(top, float(r.err[sel].max()) if sel.any() else 0.0)
+            if r.arm == "B" and len(r.own_t):
+                ox = r.own_t - r.deny_on
+                used = r.own_fix >= 2
+                ax.plot(ox[used], r.own_err[used], ".", color="tab:orange", ms=2, label="companion's fixes sent (B)")
+                ax.plot(ox[used], 2 * r.own_hacc[used], ".", color="tab:purple", ms=1,
+                        label="2x their stated h_acc")
+            if math.isfinite(r.left_guided_s):
+                ax.axvline(r.left_guided_s, color=col, ls=":", lw=1.3,
+                           label=f"left GUIDED ({r.arm}) +{r.left_guided_s:.0f} s")
+        ax.set_xlim(x0, x1)
+        ax.set_ylim(0, min(top * 1.15, 60.0))
+        ax.set_title(f"{sc} (run {run}): horizontal EKF error vs SITL truth", fontsize=9)
+        ax.set_xlabel("time since GPS1 denied (s)")
+        ax.set_ylabel("error (m)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
