@@ -9,8 +9,7 @@ the last one seen, and a multicopter leaving a hover barely shows in those stati
 accelerometers keep reading the thrust along the body's down axis). So the horizontal specific force resolved with
 the autopilot's attitude (``add_horizontal_dv``) is integrated from the last GNSS speed: once it adds up to
 ``max_dv_mps`` the vehicle has moved, and there is no hover until a new speed says slow (else a vehicle cruising away
-from a stop is a hover, and the zero-velocity aid pinned its velocity to zero: on a simulated lap 108 m off 20 s into
-the blockage, 6 m without it). Pure: O(1) per sample.
+from a stop is a hover, and the zero-velocity aid pins its velocity to zero). Pure: O(1) per sample.
 
 The rate bound does not find every hover: the Erle PXF log's airframe rocks at 0.13-0.28 rad/s (low-passed rate std)
 in its hover at 73-81 s, as much as when it flies (median 0.19 below 0.7 m/s, 0.19-0.23 above), and there hold beats

@@ -3,9 +3,9 @@
 An INS aided by GNSS learns its heading and its accelerometer biases only from manoeuvres: in a hover or on a straight
 line the specific force has no horizontal part that a heading error would rotate, and a horizontal accelerometer bias
 cannot be told from a tilt (Groves 2013, sec. 14.2 and 16.3.2). Taken over after a hover, such an INS runs away as soon
-as the vehicle turns: on ArduCopter SITL, 22.7 m at +30 s against 7.4 m for the autopilot alone; after one manoeuvring
-lap, 1.2-1.5 m. So the companion takes over in an outage only while every measure below passes, judged on what was seen
-*before* the loss (docs/decisions/0001-takeover-trust.md gives the measurements behind each bound):
+as the vehicle turns (far worse than the autopilot dead-reckoning alone); after a manoeuvring lap it holds metres. So
+the companion takes over in an outage only while every measure below passes, judged on what was seen *before* the loss
+(docs/decisions/0001-takeover-trust.md: the SITL flights behind each bound):
 
 * ``mode``: the navigator runs its INS (a constant-velocity filter cannot carry a manoeuvring vehicle);
 * ``aided_s``: GNSS has aided that INS for this long since its last (re)initialisation or reset;

@@ -4,9 +4,10 @@ SIM_GPS1_ENABLE=0 in flight:
 * A: ArduPilot alone, its default parameters;
 * AD: ArduPilot alone at its best for a GPS loss: EKF3 drag fusion (EK3_DRAG_BCOEF_X/Y, EK3_DRAG_MCOEF: the values
   SITL itself suggests for its frame) with the dead-reckoning failsafe (FS_DR_ENABLE, FS_DR_TIMEOUT);
-* B: AD plus the real ``companion run`` process as GPS2 in the recommended set-up (README, "ArduPilot set-up"):
+* B: A plus the real ``companion run`` process as GPS2 in the recommended set-up (docs/ardupilot.md):
   ``inject.activate = "takeover"``, the companion carrying the vehicle through the outage when its trust monitor
-  judged its solution fit at the loss, else sending no fix (EKF3 dead-reckons as in AD).
+  judged its solution fit at the loss, else sending no fix (EKF3 loses its position as in A);
+* BD: the same companion on top of AD.
 
     nice -n 5 .venv/bin/python -m replay.live.sitl --sitl-bin PATH/build/sitl/bin/arducopter \\
         --scenarios lap-deny-30 short-hover-deny-30 --runs 2
@@ -54,7 +55,8 @@ REPO = Path(__file__).resolve().parents[2]
 RESULTS = REPO / "replay" / "results"
 RESULTS_MD = RESULTS / "sitl_ab.md"
 HOME = "-35.363261,149.165230,584,353"  # ArduPilot's usual SITL home (CMAC); any will do
-ARMS = ("A", "AD", "B")
+ARMS = ("A", "AD", "B", "BD")
+DEFAULT_ARMS = ("A", "AD", "B")
 
 #: set in every arm: quad frame, no fence and no RC failsafe (the harness has no RC), GPS1 on
 VEHICLE_PARAMS = {"FRAME_CLASS": 1, "FRAME_TYPE": 0, "FENCE_ENABLE": 0, "FS_THR_ENABLE": 0, "SIM_GPS1_ENABLE": 1}
@@ -66,9 +68,12 @@ COMPANION_PARAMS = {
     "GPS2_TYPE": 14, "GPS_AUTO_SWITCH": 4, "GPS_PRIMARY": 0, "SERIAL1_PROTOCOL": 2,
     "EK3_SRC1_POSXY": 3, "EK3_SRC1_VELXY": 3, "EK3_SRC1_POSZ": 1, "EK3_SRC1_VELZ": 3,
 }
-#: B's companion settings besides --companion-set (systemd/companion.toml recommends the same)
+#: B's companion settings besides --companion-set (systemd/companion.toml recommends the same): the takeover, the GNSS
+#: latency measured online, the autopilot's heading fused, no fix while armed beside a healthy GPS1, and no motion prior
+#: (its hold/constant-velocity blend widens the stated accuracy of an INS that carries the vehicle, without making it
+#: more accurate: docs/decisions/0001-takeover-trust.md)
 COMPANION_SETS = ['inject.activate="takeover"', "navigator.gnss_delay_estimate=true",
-                  "navigator.fuse_attitude_yaw=true", "inject.backup_fix_when_armed=false"]
+                  "navigator.fuse_attitude_yaw=true", "inject.backup_fix_when_armed=false", "navigator.motion_prior=false"]
 STREAMS_HZ = {  # requested on the harness's own link (SERIAL0) with SET_MESSAGE_INTERVAL
     "GLOBAL_POSITION_INT": 25, "SIMSTATE": 50, "ATTITUDE": 50, "LOCAL_POSITION_NED": 10, "GPS_RAW_INT": 5,
     "GPS2_RAW": 5, "EKF_STATUS_REPORT": 2, "SYS_STATUS": 1, "HEARTBEAT": 1,
@@ -111,10 +116,10 @@ def speed_params(sc: core.Scenario, new_names: bool) -> dict[str, float]:
 
 def arm_params(sc: core.Scenario, arm: str, a, found: dict) -> dict[str, float]:
     params = {**VEHICLE_PARAMS, **speed_params(sc, found["new_wp_names"]), **sc.sim_params()}
-    if arm in ("AD", "B"):
+    if arm in ("AD", "BD"):
         params.update(found["drag"])
         params.update(DR_FAILSAFE_PARAMS)
-    if arm == "B":
+    if arm in ("B", "BD"):
         params.update(COMPANION_PARAMS)
     for kv in a.param or []:
         k, v = kv.split("=", 1)
@@ -146,14 +151,14 @@ def fly(sc: core.Scenario, arm: str, a, work: Path, found: dict, run: int = 1) -
         veh.pump(lambda: log.modes != [], 30, "first HEARTBEAT")
         veh.request_streams(STREAMS_HZ)
         veh.verify_params(params)
-        if arm == "B":
+        if arm in ("B", "BD"):
             ccmd = [sys.executable, "-m", "companion.cli", "run", "--connect", f"tcp:127.0.0.1:{base + 2}",
                     "--inject", "inject", "--gps-id", "1", "--out", str(mcap)] + sum((["--set", s] for s in _sets(a)), [])
             comp = subprocess.Popen(ccmd, cwd=REPO, stdout=open(work / f"companion_{tag}.out", "w"),
                                     stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
         veh.pump(lambda: log.truth != [] and log.ekf != [], 30, "SIMSTATE and GLOBAL_POSITION_INT streams")
         veh.pump(lambda: log.gps_fix(1) >= 3, 90, "GPS1 3D fix")
-        if arm == "B" and not veh.pump(lambda: log.gps_fix(2) >= 3, 90, "GPS2 (companion) 3D fix", must=False):
+        if arm in ("B", "BD") and not veh.pump(lambda: log.gps_fix(2) >= 3, 90, "GPS2 (companion) 3D fix", must=False):
             notes.append("GPS2 never reported a 3D fix before arming")
         veh.pump(lambda: bool(log.ekf_flags) and (log.ekf_flags[-1][1] & EKF_READY_FLAGS) == EKF_READY_FLAGS, 120,
                  "EKF absolute horizontal position")
@@ -198,7 +203,7 @@ def _sets(a) -> list[str]:
 
 def _finish(sc, arm, log, records, notes, run, mcap: Path) -> core.ArmResult:
     takeover, trust, shed = "", {}, (0, 0)
-    if arm == "B" and mcap.exists():
+    if arm in ("B", "BD") and mcap.exists():
         records, takeover, trust = read_companion(mcap, log.marks.get("deny_on", math.nan))
         shed = companion_shed(mcap)
         notes.append(f"companion MCAP: {len(records)} GPS_INPUT records")
@@ -335,8 +340,8 @@ def write_results(results: list[core.ArmResult], a, argv: list[str], started: st
         f"Every arm: {', '.join(f'{k}={v}' for k, v in VEHICLE_PARAMS.items())}, the scenario's waypoint speed and "
         f"SITL wind (e.g. {', '.join(f'{k}={v:g}' for k, v in arm_params(sc0, 'A', a, found).items() if k.startswith(('WP', 'SIM_WIND')))}). "
         f"AD adds {', '.join(f'{k}={v:g}' for k, v in {**found['drag'], **DR_FAILSAFE_PARAMS}.items())} (drag: the "
-        f"coefficients SITL suggests for its frame). B adds to AD {', '.join(f'{k}={v}' for k, v in COMPANION_PARAMS.items())} "
-        f"and the companion with `--set {' '.join(_sets(a))}`.\n",
+        f"coefficients SITL suggests for its frame). B adds to A, BD to AD, "
+        f"{', '.join(f'{k}={v}' for k, v in COMPANION_PARAMS.items())} and the companion with `--set {' '.join(_sets(a))}`.\n",
         "EKF error = GLOBAL_POSITION_INT vs SIMSTATE truth interpolated to its time_boot_ms. Times after the denial are "
         "from the moment SIM_GPS1_ENABLE=0 was sent. After a failsafe's mode change (LAND, RTL) the harness stops "
         "steering and the vehicle is no longer on its route.\n",
@@ -370,7 +375,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--sitl-bin", help="ArduCopter SITL binary (default: env COMPANION_SITL_BIN)")
     p.add_argument("--sitl-defaults", help="ArduPilot defaults file (default: copter.parm relative to the binary; 'none')")
     p.add_argument("--scenarios", nargs="+", default=core.DEFAULT_SCENARIOS, choices=sorted(core.SCENARIOS))
-    p.add_argument("--arms", nargs="+", default=list(ARMS), choices=list(ARMS))
+    p.add_argument("--arms", nargs="+", default=list(DEFAULT_ARMS), choices=list(ARMS))
     p.add_argument("--runs", type=int, default=1, help="fly every scenario and arm this many times")
     p.add_argument("--speedup", type=float, default=1.0)
     p.add_argument("--home", default=HOME)

@@ -11,8 +11,10 @@ import numpy as np
 
 from replay.live.sitl_core import MARK_STEP_S, OWN_MARKS, PHASES, SCENARIOS, ArmResult
 
-ARM_NAMES = {"A": "ArduPilot alone", "AD": "alone, drag fusion + DR failsafe", "B": "+ companion (takeover)"}
-ARM_COLOURS = {"A": "tab:blue", "AD": "tab:green", "B": "tab:red"}
+ARM_NAMES = {"A": "ArduPilot alone", "AD": "alone, drag fusion + DR failsafe", "B": "+ companion (takeover)",
+             "BD": "drag fusion + DR failsafe + companion"}
+ARM_COLOURS = {"A": "tab:blue", "AD": "tab:green", "B": "tab:red", "BD": "tab:brown"}
+COMPANION_ARMS = {"B": "A", "BD": "AD"}  # each companion arm and the arm it adds the companion to
 LATLON_STEP_M = 0.011  # GLOBAL_POSITION_INT's lat/lon step (1e-7 deg) in metres
 FAILSAFE_CHECK_S = 0.1  # ArduCopter's EKF failsafe check period
 
@@ -74,19 +76,19 @@ def events_lines(results: list[ArmResult]) -> str:
 def companion_table(results: list[ArmResult]) -> str:
     rows = []
     for r in results:
-        if r.arm != "B":
+        if r.arm not in COMPANION_ARMS:
             continue
         tr = r.trust
         trust = (f"{'fit' if tr.get('fit') else 'unfit'}: heading sigma {_f(math.degrees(tr['yaw_sigma_rad']), 1)} deg, "
                  f"manoeuvres {_f(tr.get('manoeuvre_mps'), 1)} m/s" if tr and tr.get("yaw_sigma_rad") is not None
                  else "—")
-        rows.append([r.scenario, _run(r), r.takeover or "—", trust, _fixes(r.sent_fix), _fixes(r.gps2_fix_denial),
+        rows.append([r.scenario, _run(r), r.arm, r.takeover or "—", trust, _fixes(r.sent_fix), _fixes(r.gps2_fix_denial),
                      _f(r.own_healthy_mean)] + [_f(r.own_err_at.get(o, math.nan), 1) for o in OWN_MARKS]
                     + [f"{_f(100 * r.within_2hacc, 1)} % of {r.fixes_with_hacc}", _f(r.last_hacc_m, 1),
                        _f(r.return_jump_m, 2), kept_up(r)])
     if not rows:
         return ""
-    return md(["scenario", "run", "decision at the loss", "trust at the loss", "fix types sent (type:count)",
+    return md(["scenario", "run", "arm", "decision at the loss", "trust at the loss", "fix types sent (type:count)",
                "GPS2_RAW during denial", "own error before denial, mean (m)"]
               + [f"own error +{int(o)} s (m)" for o in OWN_MARKS]
               + ["fixes within 2x h_acc", "last h_acc before GPS1 back (m)", "EKF jump at GPS1 back (m)",
@@ -104,7 +106,7 @@ def kept_up(r: ArmResult) -> str:
 
 def lag_table(results: list[ArmResult]) -> str:
     rows = [[r.scenario, _run(r), ARM_NAMES.get(r.arm, r.arm), _f(r.ekf_lag_s), _f(r.ekf_lag_err),
-             _f(r.own_lag_s) if r.arm == "B" else "", _f(r.own_lag_err) if r.arm == "B" else ""]
+             _f(r.own_lag_s) if r.arm in COMPANION_ARMS else "", _f(r.own_lag_err) if r.arm in COMPANION_ARMS else ""]
             for r in results if math.isfinite(r.ekf_lag_s)]
     if not rows:
         return ""
@@ -132,63 +134,61 @@ def _takes_over(r: ArmResult) -> bool:
 
 
 def ab_verdicts(results: list[ArmResult]) -> list[str]:
-    """The targets, per scenario and run where the arms ran: healthy flight, the denial after a manoeuvre, the denial
-    where the companion stays out, honesty of the stated accuracy, the return of GNSS; against alone at its best."""
+    """The targets, per scenario, run and companion arm: healthy flight, the denial after a manoeuvre, the denial where
+    the companion stays out, honesty of the stated accuracy, the return of GNSS; against ArduPilot alone (A) and alone
+    at its best (AD)."""
     by = {(r.scenario, _run(r), r.arm): r for r in results}
     out: list[str] = []
     pooled: dict[str, list[tuple[float, float]]] = defaultdict(list)
     for (sc, run, arm), b in sorted(by.items()):
-        if arm != "B":
+        if arm not in COMPANION_ARMS:
             continue
+        who = f"{sc} run {run} {arm}"
         for ref in ("A", "AD"):
             a = by.get((sc, run, ref))
             if a is None:
                 continue
             for p in ("hover", "route"):
                 if p in a.phases and p in b.phases and math.isfinite(a.phases[p][0]) and math.isfinite(b.phases[p][0]):
-                    ma, mb = a.phases[p][0], b.phases[p][0]
-                    pooled[f"{p} B/{ref}"].append((ma, mb))
+                    pooled[f"{p} {arm}/{ref}"].append((a.phases[p][0], b.phases[p][0]))
             if not (a.marks_err and b.marks_err):
                 continue
-            worse = [(o, eb - ea) for (o, ea), (_o, eb) in zip(_denial_marks(a), _denial_marks(b))
-                     if math.isfinite(ea) and math.isfinite(eb) and eb > ea + 0.5]
+            pairs = list(zip(_denial_marks(a), _denial_marks(b)))
+            worse = [(o, eb - ea) for (o, ea), (_o, eb) in pairs if math.isfinite(ea) and math.isfinite(eb) and eb > ea + 0.5]
+            worst = (f" (worst +{int(max(worse, key=lambda w: w[1])[0])} s: +{max(w[1] for w in worse):.1f} m)"
+                     if worse else "")
             if _takes_over(b):
-                better = [(o, ea - eb) for (o, ea), (_o, eb) in zip(_denial_marks(a), _denial_marks(b))
-                          if math.isfinite(ea) and math.isfinite(eb) and eb < ea - 0.5]
-                out.append(f"- {sc} run {run}, B vs {ref}: better by > 0.5 m at {len(better)} of "
-                           f"{len(_denial_marks(a))} denial marks, worse at {len(worse)}"
-                           + (f" (worst +{int(max(worse, key=lambda w: w[1])[0])} s: +{max(w[1] for w in worse):.1f} m)"
-                              if worse else "")
-                           + f"; left GUIDED: B {_f(b.left_guided_s, 1)} s, {ref} {_f(a.left_guided_s, 1)} s")
+                better = [o for (o, ea), (_o, eb) in pairs if math.isfinite(ea) and math.isfinite(eb) and eb < ea - 0.5]
+                out.append(f"- {who} vs {ref}: better by > 0.5 m at {len(better)} of {len(pairs)} denial marks, worse at "
+                           f"{len(worse)}{worst}; left GUIDED: {arm} {_f(b.left_guided_s, 1)} s, {ref} "
+                           f"{_f(a.left_guided_s, 1)} s")
             else:
                 late = (math.isfinite(b.failsafe_s) and math.isfinite(a.failsafe_s)
                         and b.failsafe_s > a.failsafe_s + FAILSAFE_CHECK_S)
-                out.append(f"- {sc} run {run}, companion stayed out ({b.takeover or 'no decision recorded'}): "
-                           f"marks worse than {ref} by > 0.5 m: {len(worse)} of {len(_denial_marks(a))}"
-                           + (f" (worst +{int(max(worse, key=lambda w: w[1])[0])} s: +{max(w[1] for w in worse):.1f} m)"
-                              if worse else "")
-                           + f"; EKF failsafe B {_f(b.failsafe_s, 1)} s vs {ref} {_f(a.failsafe_s, 1)} s"
+                out.append(f"- {who}, companion stayed out ({b.takeover or 'no decision recorded'}), vs {ref}: marks "
+                           f"worse by > 0.5 m: {len(worse)} of {len(pairs)}{worst}; EKF failsafe {arm} "
+                           f"{_f(b.failsafe_s, 1)} s vs {ref} {_f(a.failsafe_s, 1)} s"
                            + (" (later: NOT met)" if late else " (met)" if not worse else " (NOT met)"))
         if _takes_over(b) and b.marks_err:
             d = SCENARIOS[sc].deny_s if sc in SCENARIOS else math.inf
             marks = _denial_marks(b)
             if d <= 30:
-                worst = max((e for _o, e in marks if math.isfinite(e)), default=math.nan)
-                ok = not math.isfinite(b.left_guided_s) and worst <= 3.0
-                out.append(f"- {sc} run {run}: took over; no failsafe: {'yes' if not math.isfinite(b.left_guided_s) else 'NO'}, "
-                           f"EKF error <= {_f(worst, 1)} m at every 5 s mark (target <= 3 m, no failsafe: "
+                worst_m = max((e for _o, e in marks if math.isfinite(e)), default=math.nan)
+                ok = not math.isfinite(b.left_guided_s) and worst_m <= 3.0
+                out.append(f"- {who}: took over; no failsafe: {'yes' if not math.isfinite(b.left_guided_s) else 'NO'}, "
+                           f"EKF error <= {_f(worst_m, 1)} m at every 5 s mark (target <= 3 m, no failsafe: "
                            f"{'met' if ok else 'NOT met'})")
             else:
                 flew = b.left_guided_s if math.isfinite(b.left_guided_s) else d
                 worst45 = max((e for o, e in marks if o <= 45.0 and math.isfinite(e)), default=math.nan)
                 ok = flew >= 45.0 and worst45 <= 5.0
-                out.append(f"- {sc} run {run}: took over; flew on {_f(flew, 1)} s of the {d:g} s denial, <= "
+                out.append(f"- {who}: took over; flew on {_f(flew, 1)} s of the {d:g} s denial, <= "
                            f"{_f(worst45, 1)} m to +45 s (target >= 45 s at <= 5 m: {'met' if ok else 'NOT met'})")
         if b.fixes_with_hacc:
-            out.append(f"- {sc} run {run}: {100 * b.within_2hacc:.1f} % of {b.fixes_with_hacc} fixes sent within 2x "
+            out.append(f"- {who}: {100 * b.within_2hacc:.1f} % of {b.fixes_with_hacc} fixes sent within 2x "
                        f"their h_acc (target >= 95 %: {'met' if b.within_2hacc >= 0.95 else 'NOT met'})")
         if math.isfinite(b.return_jump_m) and math.isfinite(b.last_hacc_m) and _takes_over(b):
-            out.append(f"- {sc} run {run}: EKF jump at GPS1's return {b.return_jump_m:.2f} m, last stated h_acc "
+            out.append(f"- {who}: EKF jump at GPS1's return {b.return_jump_m:.2f} m, last stated h_acc "
                        f"{b.last_hacc_m:.1f} m ({'met' if b.return_jump_m <= b.last_hacc_m else 'NOT met'})")
     for key, pairs in sorted(pooled.items()):
         ma, mb = (float(np.mean(x)) for x in zip(*pairs))
@@ -222,10 +222,11 @@ def plot(results: list[ArmResult], path: Path) -> None:
             ax.plot(tx, r.err, color=col, lw=1.2, label=f"EKF, {ARM_NAMES.get(r.arm, r.arm)}")
             sel = (tx >= x0) & (tx <= x1)
             top = max(top, float(r.err[sel].max()) if sel.any() else 0.0)
-            if r.arm == "B" and len(r.own_t):
+            if r.arm in COMPANION_ARMS and len(r.own_t):
                 ox = r.own_t - r.deny_on
                 used = r.own_fix >= 2
-                ax.plot(ox[used], r.own_err[used], ".", color="tab:orange", ms=2, label="companion's fixes sent (B)")
+                ax.plot(ox[used], r.own_err[used], ".", color="tab:orange", ms=2,
+                        label=f"companion's fixes sent ({r.arm})")
                 ax.plot(ox[used], 2 * r.own_hacc[used], ".", color="tab:purple", ms=1,
                         label="2x their stated h_acc")
             if math.isfinite(r.left_guided_s):

@@ -238,7 +238,7 @@ def test_verdict_when_the_companion_stays_out():
     """Not fit: never worse than alone by more than 0.5 m at a denial mark, the failsafe no later than alone's (within
     ArduCopter's 0.1 s check period)."""
     _, _, v = _ab(a_fs=48.0, b_fs=48.05, takeover="no takeover: manoeuvres 0.3 m/s < 3")
-    assert "companion stayed out (no takeover: manoeuvres 0.3 m/s < 3)" in v and "0 of 7" in v and "(met)" in v
+    assert "companion stayed out (no takeover: manoeuvres 0.3 m/s < 3), vs A" in v and "0 of 7" in v and "(met)" in v
     _, _, v = _ab(a_fs=48.0, b_fs=49.0, takeover="no takeover: x")
     assert "(later: NOT met)" in v
     _, _, v = _ab(b_off=lambda t: 0.2 if t < 50 else 1.0, takeover="no takeover: x")
