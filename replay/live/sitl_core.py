@@ -457,10 +457,10 @@ class ArmResult:
     sent_fix: dict[int, int]
     own_err_at: dict[float, float]
     own_healthy_mean: float
-    within_2hacc: float  # share of the fixes sent with a 2D/3D fix whose error is within 2x their h_acc
+    within_2hacc: float  # share of the 3D fixes sent whose error is within 2x their h_acc
     fixes_with_hacc: int  # how many that share is of
     return_jump_m: float  # the EKF's largest step when GPS1 came back
-    last_hacc_m: float  # the companion's last stated h_acc with a 2D/3D fix before GPS1 came back (nan: none sent)
+    last_hacc_m: float  # the companion's last stated h_acc with a 3D fix before GPS1 came back (nan: none sent)
     t_err: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
     err: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
     own_t: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
@@ -506,7 +506,7 @@ def analyse(scenario: Scenario, arm: str, log: FlightLog, records: list[dict] | 
             own_at[off] = _nearest(own_t, own_err, deny_on + off, 0.5)
     healthy_end = deny_on if have_deny else log.marks.get("end", math.inf)
     sel = (own_t >= log.marks.get("hover", math.inf)) & (own_t < healthy_end)
-    used = own_fx >= 2  # what ArduPilot takes as a fix
+    used = own_fx >= 3  # what EKF3 fuses (a 2D fix is no position to it) and GPS_AUTO_SWITCH selects
     ok_h = used & np.isfinite(own_hacc) & (own_hacc > 0)
     before_back = ok_h & (own_t < deny_off) if math.isfinite(deny_off) else ok_h
     lag = (math.nan, math.nan)

@@ -91,7 +91,7 @@ def companion_table(results: list[ArmResult]) -> str:
     return md(["scenario", "run", "arm", "decision at the loss", "trust at the loss", "fix types sent (type:count)",
                "GPS2_RAW during denial", "own error before denial, mean (m)"]
               + [f"own error +{int(o)} s (m)" for o in OWN_MARKS]
-              + ["fixes within 2x h_acc", "last h_acc before GPS1 back (m)", "EKF jump at GPS1 back (m)",
+              + ["3D fixes within 2x h_acc", "last 3D h_acc before GPS1 back (m)", "EKF jump at GPS1 back (m)",
                  "kept up (IMU samples coalesced)"], rows)
 
 
@@ -185,7 +185,7 @@ def ab_verdicts(results: list[ArmResult]) -> list[str]:
                 out.append(f"- {who}: took over; flew on {_f(flew, 1)} s of the {d:g} s denial, <= "
                            f"{_f(worst45, 1)} m to +45 s (target >= 45 s at <= 5 m: {'met' if ok else 'NOT met'})")
         if b.fixes_with_hacc:
-            out.append(f"- {who}: {100 * b.within_2hacc:.1f} % of {b.fixes_with_hacc} fixes sent within 2x "
+            out.append(f"- {who}: {100 * b.within_2hacc:.1f} % of {b.fixes_with_hacc} 3D fixes sent within 2x "
                        f"their h_acc (target >= 95 %: {'met' if b.within_2hacc >= 0.95 else 'NOT met'})")
         if math.isfinite(b.return_jump_m) and math.isfinite(b.last_hacc_m) and _takes_over(b):
             out.append(f"- {who}: EKF jump at GPS1's return {b.return_jump_m:.2f} m, last stated h_acc "
@@ -224,9 +224,9 @@ def plot(results: list[ArmResult], path: Path) -> None:
             top = max(top, float(r.err[sel].max()) if sel.any() else 0.0)
             if r.arm in COMPANION_ARMS and len(r.own_t):
                 ox = r.own_t - r.deny_on
-                used = r.own_fix >= 2
+                used = r.own_fix >= 3
                 ax.plot(ox[used], r.own_err[used], ".", color="tab:orange", ms=2,
-                        label=f"companion's fixes sent ({r.arm})")
+                        label=f"companion's 3D fixes sent ({r.arm})")
                 ax.plot(ox[used], 2 * r.own_hacc[used], ".", color="tab:purple", ms=1,
                         label="2x their stated h_acc")
             if math.isfinite(r.left_guided_s):

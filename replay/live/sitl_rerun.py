@@ -6,7 +6,7 @@ flights without flying again (the vehicle's path does not change: in a re-run no
 
 DIR is a kept run's directory (its companion_*.mcap records and log_*.json flight logs). Per flight: the takeover
 decision and trust measures at the loss, then the companion's error against truth / its stated h_acc / its fix type
-every 5 s of the denial, and the share of its 2D/3D fixes in the denial within 2x their h_acc.
+every 5 s of the denial, and the share of its 3D fixes (what EKF3 fuses) in the denial within 2x their h_acc.
 """
 
 from __future__ import annotations
@@ -92,7 +92,7 @@ def rerun(work: Path, tag: str, sets: list[str]) -> dict:
     state = [s.reason for s in sink.items if isinstance(s, InjectorState) and s.t_s >= t0 - 1.0]
     marks = {k: (float(err[i]), float(hacc[i]), int(fix[i])) for k in range(5, int(t1 - t0) + 1, 5)
              for i in [int(np.argmin(np.abs(t - (t0 + k))))]}
-    den = (t >= t0) & (t < t1) & (fix >= 2) & np.isfinite(err)
+    den = (t >= t0) & (t < t1) & (fix >= 3) & np.isfinite(err)
     return {"decision": state[0] if state else "", "verdict": verdict[-1] if verdict else None, "marks": marks,
             "within_2hacc": float(np.mean(err[den] <= 2 * hacc[den])) if den.any() else math.nan}
 

@@ -201,11 +201,13 @@ def test_companion_error_against_the_time_it_claims():
     assert r.own_healthy_mean == pytest.approx(1.5, abs=0.02)
     assert r.own_err_at[10.0] == pytest.approx(1.5, abs=0.02)
     assert r.sent_fix == {2: 250, 3: 250}
-    # 1.5 m of error: within 2 x 1.0 m before t = 60 s (300 fixes), outside 2 x 0.5 m after (200)
-    assert r.fixes_with_hacc == 500 and r.within_2hacc == pytest.approx(300 / 500)
-    assert r.last_hacc_m == pytest.approx(0.5)  # the last fix sent before GPS1 came back (t 69.8 s)
+    # 1.5 m of error, 3D fixes (what EKF3 fuses) before t = 50 s: within 2 x 1.0 m; the 2D fixes after do not count
+    assert r.fixes_with_hacc == 250 and r.within_2hacc == pytest.approx(1.0)
+    assert r.last_hacc_m == pytest.approx(1.0)  # the last 3D fix sent before GPS1 came back (t 49.8 s)
     table = report.companion_table([r])
-    assert "3:250" in table and "1.5" in table and "60.0 % of 500" in table
+    assert "3:250" in table and "1.5" in table and "100.0 % of 250" in table
+    recs = [dict(x, h_acc_m=0.5) for x in recs]
+    assert core.analyse(core.SCENARIOS["lap-deny-30"], "B", log, recs).within_2hacc == 0.0  # 1.5 m > 2 x 0.5 m
 
 
 def _ab(sc="lap-deny-30", a_off=lambda t: 0.2, b_off=lambda t: 0.2, a_fs=None, b_fs=None, takeover="takeover: fit"):
