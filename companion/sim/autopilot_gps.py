@@ -1,6 +1,6 @@
 """What an ArduPilot does with the GPS_INPUT it receives, as far as the simulated vehicle models it.
 
-Observed on ArduCopter SITL with the companion as a MAVLink GPS (``GPSn_TYPE = 14``, README "ArduPilot set-up")
+Observed on ArduCopter SITL with the companion as a MAVLink GPS (``GPSn_TYPE = 14``, docs/ardupilot.md)
 and read in ArduPilot's source:
 
 * AP_GPS_MAV takes a GPS_INPUT only when ``gps_id`` is its own (zero-based) instance; the driver's status is the

@@ -63,7 +63,7 @@ VEHICLE_PARAMS = {"FRAME_CLASS": 1, "FRAME_TYPE": 0, "FENCE_ENABLE": 0, "FS_THR_
 #: AD and B: the dead-reckoning failsafe as ArduCopter documents it (the action as dead reckoning starts, RTL, and the
 #: time it may dead-reckon before the EKF failsafe, 30 s); the drag coefficients come from SITL (suggested_drag)
 DR_FAILSAFE_PARAMS = {"FS_DR_ENABLE": 2, "FS_DR_TIMEOUT": 30}
-#: B: the README's "ArduPilot set-up" (instance 2 = MAVLink; GPS1 primary, GPS2 taken only when GPS1 has no 3D fix)
+#: B and BD: the set-up of docs/ardupilot.md (instance 2 = MAVLink; GPS1 primary, GPS2 taken only when GPS1 has no 3D fix)
 COMPANION_PARAMS = {
     "GPS2_TYPE": 14, "GPS_AUTO_SWITCH": 4, "GPS_PRIMARY": 0, "SERIAL1_PROTOCOL": 2,
     "EK3_SRC1_POSXY": 3, "EK3_SRC1_VELXY": 3, "EK3_SRC1_POSZ": 1, "EK3_SRC1_VELZ": 3,
@@ -319,7 +319,7 @@ def companion_shed(path: Path) -> tuple[int, int]:
 
 # -- results -----------------------------------------------------------------------------------------------------------
 def write_results(results: list[core.ArmResult], a, argv: list[str], started: str, load_before: str, found: dict,
-                  after: str | None = None) -> None:
+                  after: str | None = None, note: str = "") -> None:
     from replay.harness.results import write_section
 
     RESULTS.mkdir(parents=True, exist_ok=True)
@@ -336,7 +336,8 @@ def write_results(results: list[core.ArmResult], a, argv: list[str], started: st
         f"SITL: `{a.sitl_bin_path}` at ArduPilot commit {sitl_commit(a.sitl_bin_path)}; `--speedup {a.speedup}`; "
         f"defaults: {a.defaults_path or 'none (harness params only)'} + the harness's own params, each read back from "
         "the autopilot before take-off.  ",
-        f"Started {started}; machine before: {load_before}; after: {after or machine_state()}.  ",
+        f"Started {started}; machine before: {load_before}; after: {after or machine_state()}.  "
+        + (f"\n{note}  " if note else ""),
         f"Every arm: {', '.join(f'{k}={v}' for k, v in VEHICLE_PARAMS.items())}, the scenario's waypoint speed and "
         f"SITL wind (e.g. {', '.join(f'{k}={v:g}' for k, v in arm_params(sc0, 'A', a, found).items() if k.startswith(('WP', 'SIM_WIND')))}). "
         f"AD adds {', '.join(f'{k}={v:g}' for k, v in {**found['drag'], **DR_FAILSAFE_PARAMS}.items())} (drag: the "
@@ -349,7 +350,7 @@ def write_results(results: list[core.ArmResult], a, argv: list[str], started: st
     ]
     for title, body in (("EKF horizontal error (m) every 5 s after GPS1 is denied", report.marks_table(results)),
                         ("Mode changes and failsafe messages after the denial", report.events_lines(results)),
-                        ("The companion (arm B): its decision, its fixes, their honesty, GPS1's return",
+                        ("The companion (arms B, BD): its decision, its fixes, their honesty, GPS1's return",
                          report.companion_table(results)),
                         ("Delay on the route (before any denial)", report.lag_table(results))):
         if body:
@@ -417,7 +418,7 @@ def reanalyse(a, work: Path) -> int:
     _print(results)
     if not no_write and results:
         write_results(results, a, meta["argv"], meta["started"], meta["load_before"], meta["found"],
-                      after=meta.get("load_after"))
+                      after=meta.get("load_after"), note=meta.get("note", ""))
     return 0
 
 

@@ -460,7 +460,7 @@ class ArmResult:
     within_2hacc: float  # share of the 3D fixes sent whose error is within 2x their h_acc
     fixes_with_hacc: int  # how many that share is of
     return_jump_m: float  # the EKF's largest step when GPS1 came back
-    last_hacc_m: float  # the companion's last stated h_acc with a 3D fix before GPS1 came back (nan: none sent)
+    last_hacc_m: float  # h_acc of the companion's last fix before GPS1 came back if it was 3D (nan: no claim standing)
     t_err: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
     err: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
     own_t: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
@@ -508,7 +508,10 @@ def analyse(scenario: Scenario, arm: str, log: FlightLog, records: list[dict] | 
     sel = (own_t >= log.marks.get("hover", math.inf)) & (own_t < healthy_end)
     used = own_fx >= 3  # what EKF3 fuses (a 2D fix is no position to it) and GPS_AUTO_SWITCH selects
     ok_h = used & np.isfinite(own_hacc) & (own_hacc > 0)
-    before_back = ok_h & (own_t < deny_off) if math.isfinite(deny_off) else ok_h
+    # the claim standing when GPS1 came back: the last fix sent before, if it was a 3D fix EKF3 was fusing
+    sent_before = own_t < deny_off if math.isfinite(deny_off) else np.zeros(len(own_t), bool)
+    last_claim = (float(own_hacc[sent_before][-1]) if sent_before.any() and own_fx[sent_before][-1] >= 3
+                  else math.nan)
     lag = (math.nan, math.nan)
     own_lag = (math.nan, math.nan)
     if "route" in iv:
@@ -534,7 +537,7 @@ def analyse(scenario: Scenario, arm: str, log: FlightLog, records: list[dict] | 
         within_2hacc=float(np.mean(own_err[ok_h] <= 2.0 * own_hacc[ok_h])) if ok_h.any() else math.nan,
         fixes_with_hacc=int(ok_h.sum()),
         return_jump_m=return_jump(log, deny_off) if math.isfinite(deny_off) else math.nan,
-        last_hacc_m=float(own_hacc[before_back][-1]) if before_back.any() else math.nan,
+        last_hacc_m=last_claim,
         t_err=t, err=err, own_t=own_t, own_err=own_err, own_hacc=own_hacc, own_fix=own_fx, deny_on=deny_on,
         ekf_lag_s=lag[0], ekf_lag_err=lag[1], own_lag_s=own_lag[0], own_lag_err=own_lag[1],
     )

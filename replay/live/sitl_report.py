@@ -91,7 +91,7 @@ def companion_table(results: list[ArmResult]) -> str:
     return md(["scenario", "run", "arm", "decision at the loss", "trust at the loss", "fix types sent (type:count)",
                "GPS2_RAW during denial", "own error before denial, mean (m)"]
               + [f"own error +{int(o)} s (m)" for o in OWN_MARKS]
-              + ["3D fixes within 2x h_acc", "last 3D h_acc before GPS1 back (m)", "EKF jump at GPS1 back (m)",
+              + ["3D fixes within 2x h_acc", "h_acc standing at GPS1's return (m)", "EKF jump at GPS1 back (m)",
                  "kept up (IMU samples coalesced)"], rows)
 
 
@@ -162,7 +162,7 @@ def ab_verdicts(results: list[ArmResult]) -> list[str]:
                 out.append(f"- {who} vs {ref}: better by > 0.5 m at {len(better)} of {len(pairs)} denial marks, worse at "
                            f"{len(worse)}{worst}; left GUIDED: {arm} {_f(b.left_guided_s, 1)} s, {ref} "
                            f"{_f(a.left_guided_s, 1)} s")
-            else:
+            elif ref == COMPANION_ARMS[arm]:  # staying out, it must be its own base arm, so only that one is compared
                 late = (math.isfinite(b.failsafe_s) and math.isfinite(a.failsafe_s)
                         and b.failsafe_s > a.failsafe_s + FAILSAFE_CHECK_S)
                 out.append(f"- {who}, companion stayed out ({b.takeover or 'no decision recorded'}), vs {ref}: marks "
@@ -201,44 +201,53 @@ def ab_verdicts(results: list[ArmResult]) -> list[str]:
 
 # -- the plot -------------------------------------------------------------------------------------------------------
 def plot(results: list[ArmResult], path: Path) -> None:
+    """One panel per scenario (its first run; the others are in the tables): every arm's EKF error after the loss,
+    the companion's 3D fixes' own error and twice their stated h_acc, and when each arm left its route."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     denied = [r for r in results if math.isfinite(r.deny_on)]
-    keys = list(dict.fromkeys((r.scenario, _run(r)) for r in denied))
-    if not keys:
+    scen = list(dict.fromkeys(r.scenario for r in denied))
+    if not scen:
         return
-    fig, axes = plt.subplots(len(keys), 1, figsize=(12, 3.0 * len(keys)), squeeze=False)
-    for ax, (sc, run) in zip(axes[:, 0], keys):
+    cols = min(3, len(scen))
+    rows = math.ceil(len(scen) / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(5.2 * cols, 3.4 * rows), squeeze=False)
+    for ax in axes.ravel()[len(scen):]:
+        ax.axis("off")
+    handles = {}
+    for ax, sc in zip(axes.ravel(), scen):
+        first = min(r.run for r in denied if r.scenario == sc)
         d = SCENARIOS[sc].deny_s
-        ax.axvspan(0, d, color="0.92", label=f"GPS1 denied ({d:g} s)")
-        x0, x1 = -20.0, d + SCENARIOS[sc].recover_s
-        top = 1.0
-        for r in (x for x in denied if x.scenario == sc and _run(x) == run):
+        ax.axvspan(0, d, color="0.92")
+        x0, x1 = -10.0, d + SCENARIOS[sc].recover_s
+        for r in (x for x in denied if x.scenario == sc and x.run == first):
             col = ARM_COLOURS.get(r.arm, "k")
             tx = r.t_err - r.deny_on
-            ax.plot(tx, r.err, color=col, lw=1.2, label=f"EKF, {ARM_NAMES.get(r.arm, r.arm)}")
-            sel = (tx >= x0) & (tx <= x1)
-            top = max(top, float(r.err[sel].max()) if sel.any() else 0.0)
+            handles[r.arm] = ax.plot(tx, r.err, color=col, lw=1.2)[0]
+            if math.isfinite(r.left_guided_s):
+                ax.axvline(r.left_guided_s, color=col, ls=":", lw=1.2)
             if r.arm in COMPANION_ARMS and len(r.own_t):
                 ox = r.own_t - r.deny_on
                 used = r.own_fix >= 3
-                ax.plot(ox[used], r.own_err[used], ".", color="tab:orange", ms=2,
-                        label=f"companion's 3D fixes sent ({r.arm})")
-                ax.plot(ox[used], 2 * r.own_hacc[used], ".", color="tab:purple", ms=1,
-                        label="2x their stated h_acc")
-            if math.isfinite(r.left_guided_s):
-                ax.axvline(r.left_guided_s, color=col, ls=":", lw=1.3,
-                           label=f"left GUIDED ({r.arm}) +{r.left_guided_s:.0f} s")
+                handles[f"own {r.arm}"] = ax.plot(ox[used], r.own_err[used], ".", color=col, ms=1.5, alpha=0.5)[0]
+                if r.arm == "B":
+                    handles["2h"] = ax.plot(ox[used], 2 * r.own_hacc[used], ".", color="tab:purple", ms=1)[0]
         ax.set_xlim(x0, x1)
-        ax.set_ylim(0, min(top * 1.15, 60.0))
-        ax.set_title(f"{sc} (run {run}): horizontal EKF error vs SITL truth", fontsize=9)
-        ax.set_xlabel("time since GPS1 denied (s)")
-        ax.set_ylabel("error (m)")
+        ax.set_ylim(0, 30.0)
+        ax.set_title(f"{sc} (denied {d:g} s, shaded)", fontsize=9)
+        ax.set_xlabel("time since GPS1 denied (s)", fontsize=8)
+        ax.set_ylabel("horizontal error (m)", fontsize=8)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
-    fig.tight_layout()
+    labels = {**{k: f"EKF, {v}" for k, v in ARM_NAMES.items()},
+              **{f"own {k}": f"companion's 3D fixes sent ({k})" for k in COMPANION_ARMS},
+              "2h": "2x their stated h_acc (B)"}
+    keys = [k for k in labels if k in handles]
+    fig.legend([handles[k] for k in keys], [labels[k] for k in keys], loc="lower center", ncol=4, fontsize=8,
+               title="dotted vertical line: the arm left its route (failsafe mode change); errors above 30 m clipped",
+               title_fontsize=8)
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
     fig.savefig(path, dpi=100)
     plt.close(fig)
