@@ -22,12 +22,17 @@ make_venv() {  # make_venv DIR
   fi
 }
 
+drop_old_name() {  # a venv made before the distribution was renamed still holds `companion` (the same import package)
+  if "$1/bin/python" -m pip show -q companion >/dev/null 2>&1; then "$1/bin/python" -m pip uninstall -q -y companion; fi
+}
+
 setup() {  # production: a non-editable install of the package, without test extras
   local venv=.venv
   local stamp=$venv/.installed-$( (cat pyproject.toml; find companion -type f \( -name '*.py' -o -name '*.tlog' \) | sort | xargs cat) | sha256sum | cut -c1-16)
   make_venv "$venv"
   if [ ! -f "$stamp" ]; then
     "$venv/bin/python" -m pip install -q --upgrade pip
+    drop_old_name "$venv"
     "$venv/bin/python" -m pip install -q .
     rm -f "$venv"/.installed-*; touch "$stamp"
   fi
@@ -39,6 +44,7 @@ setup_test() {  # development: editable, with the test extras
   make_venv "$venv"
   if [ ! -f "$stamp" ]; then
     "$venv/bin/python" -m pip install -q --upgrade pip
+    drop_old_name "$venv"
     "$venv/bin/python" -m pip install -q -e '.[test]'
     rm -f "$venv"/.installed-*; touch "$stamp"
   fi

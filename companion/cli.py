@@ -7,7 +7,6 @@ SIGTERM stop the work, finalise the MCAP record and print the summary of what wa
 from __future__ import annotations
 
 import argparse
-import asyncio
 import json
 import os
 import logging
@@ -67,6 +66,8 @@ def _progress_bar(total: int | None, desc: str, quiet: bool):
 
 async def _drive(source, pipeline, recorder, *, realtime_factor, bar) -> str | None:
     """Run to the end or to a signal. Returns the name of the signal that stopped it, or None."""
+    import asyncio
+
     from companion.pipeline.core import run_source
 
     loop = asyncio.get_running_loop()
@@ -213,6 +214,8 @@ def _refuse_overwriting_inputs(out: Path, inputs: list[Path]) -> None:
 
 
 def cmd_replay(args) -> int:
+    import asyncio
+
     from companion.pipeline.core import wall_time_s
     from companion.record import Recorder
     from companion.sources import FileSource
@@ -232,7 +235,7 @@ def cmd_replay(args) -> int:
                         flush_interval_s=REPLAY_FLUSH_INTERVAL_S)
     try:
         pipeline = _build_pipeline(recorder, args)
-    except UsageError:
+    except (UsageError, ImportError):  # (an ImportError: companion.extras.MissingExtra, a feature's extra)
         recorder.close()
         out.unlink(missing_ok=True)
         raise
@@ -251,14 +254,25 @@ def cmd_replay(args) -> int:
         _finish_record(recorder, source, pipeline, config, stopped_by)
         if not pipeline.stats.counts:
             out.unlink(missing_ok=True)  # an error before the first event leaves no empty record behind
-    _print_summary(source, pipeline, out, stopped_by, wall_time_s() - t0)
-    if args.gravity_map:
-        for stage in pipeline.stages:
-            for line in stage.summary_lines():
-                _print_labelled(line)
+    if args.quiet:  # -q: no summary; what went wrong with the log as warnings
+        _warn_quietly(source.info.warnings)
+    else:
+        _print_summary(source, pipeline, out, stopped_by, wall_time_s() - t0)
+        if args.gravity_map:
+            for stage in pipeline.stages:
+                for line in stage.summary_lines():
+                    _print_labelled(line)
     if stopped_by:
         return EXIT_INTERRUPTED
     return EXIT_DAMAGED if _damaged(source) else EXIT_OK
+
+
+def _warn_quietly(warnings: list[str]) -> None:
+    """A source's warnings at WARNING (what ``-q`` still shows), other systems' traffic left out as in the summary."""
+    log = logging.getLogger("companion.replay")
+    for w in warnings:
+        if not ("other system" in w and w.startswith("dropped")):
+            log.warning("%s", w)
 
 
 def _damaged(source) -> bool:
@@ -322,11 +336,13 @@ def cmd_run(args) -> int:
         recorder = Recorder(out, **rec_kw)
     try:
         runtime = Runtime(config, recorder)
-    except ValueError as err:  # the gravity map (MapFormatError is a ValueError)
+    except (ValueError, ImportError) as err:  # the gravity map (MapFormatError is a ValueError) or its extra
         recorder.close()
         if live_view is not None:
             live_view.close()
         out.unlink(missing_ok=True)
+        if isinstance(err, ImportError):
+            raise
         raise UsageError(f"gravity.map {config.gravity.map}: {err}") from None
     meta = {"command": "run", "companion_version": __version__, **config.as_flat_dict()}
     t0 = wall_time_s()
@@ -342,7 +358,15 @@ def cmd_run(args) -> int:
         _finish_record(recorder, runtime, runtime.pipeline, meta, stopped_by)
         if live_view is not None:
             live_view.close()
-    _print_summary(runtime, runtime.pipeline, recorder.path, stopped_by, wall_time_s() - t0,
+    if not args.quiet:  # -q: no summary (a write error was said on stderr when it happened)
+        _print_run_summary(runtime, recorder, stopped_by, wall_time_s() - t0)
+    # a service stopped on purpose (SIGTERM, --duration) exits cleanly
+    args.exit_now = True  # everything is written: the process may skip the interpreter's teardown (see main)
+    return EXIT_INTERRUPTED if stopped_by == "SIGINT" else EXIT_OK
+
+
+def _print_run_summary(runtime, recorder, stopped_by: str | None, elapsed_s: float) -> None:
+    _print_summary(runtime, runtime.pipeline, recorder.path, stopped_by, elapsed_s,
                    recorded=recorder.write_error is None)
     for path in getattr(recorder, "paths", [])[:-1]:
         print(f"record       {path} (earlier segment)")
@@ -354,9 +378,6 @@ def cmd_run(args) -> int:
               f"({recorder.dropped_after_error} messages not recorded)")
     for line in runtime.summary_lines():
         _print_labelled(line)
-    # a service stopped on purpose (SIGTERM, --duration) exits cleanly
-    args.exit_now = True  # everything is written: the process may skip the interpreter's teardown (see main)
-    return EXIT_INTERRUPTED if stopped_by == "SIGINT" else EXIT_OK
 
 
 def cmd_sim(args) -> int:
@@ -525,7 +546,7 @@ _EPILOG = _epilog(None)
 def _add_verbosity(parser: argparse.ArgumentParser, default) -> None:
     parser.add_argument("-v", "--verbose", action="count", default=default, help="more log output (DEBUG)")
     parser.add_argument("-q", "--quiet", action="count", default=default,
-                        help="less output: no progress bar, only warnings (-qq: only errors)")
+                        help="less output: no progress bar, no summary, only warnings (-qq: only errors)")
 
 
 def _positive_float(text: str) -> float:
@@ -539,11 +560,11 @@ def _positive_float(text: str) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)  # --version and --help end here, before the package's heavy imports
+    from companion.extras import MissingExtra
+    from companion.logsetup import configure, stderr_line
     from companion.record import RecordError
     from companion.sources import SourceError
-
-    args = build_parser().parse_args(argv)
-    from companion.logsetup import configure, stderr_line
 
     configure(getattr(args, "verbose", 0) or 0, getattr(args, "quiet", 0) or 0)
     try:
@@ -556,7 +577,7 @@ def main(argv: list[str] | None = None) -> int:
             sys.stderr.flush()
             os._exit(rc)
         return rc
-    except (SourceError, UsageError, RecordError) as err:
+    except (SourceError, UsageError, RecordError, MissingExtra) as err:
         stderr_line(f"companion: error: {err}")
         return EXIT_ERROR
     except KeyboardInterrupt:

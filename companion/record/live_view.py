@@ -39,7 +39,9 @@ class LiveView:
     """A Foxglove WebSocket server publishing what the recorder writes (see the module doc)."""
 
     def __init__(self, host: str = DEFAULT_HOST, port: int = 8765, *, name: str = "companion"):
-        import foxglove
+        from companion.extras import require
+
+        foxglove = require("foxglove", "foxglove", "the live Foxglove view (--foxglove)")
 
         self._foxglove = foxglove
         self._context = foxglove.Context()

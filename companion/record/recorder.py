@@ -48,6 +48,7 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 import companion
 from companion.events import Event
+from companion.extras import DISTRIBUTION
 from companion.logsetup import stderr_line
 from companion.record.clock import RecordClock
 from companion.record.fast_messages import fast_add_message
@@ -544,7 +545,7 @@ def _flatten_cov(cov: Any) -> list[float]:
 def _companion_version() -> str:
     # companion.__version__; the distribution's version if the package was imported as a bare namespace
     # (a stale editable install run from outside the checkout does that).
-    return getattr(companion, "__version__", None) or _dist_version("companion")
+    return getattr(companion, "__version__", None) or _dist_version(DISTRIBUTION)
 
 
 def _dist_version(dist: str) -> str:
