@@ -81,6 +81,24 @@ def test_default_replay_uses_bundled_sample(tmp_path):
     assert "sample_flight.tlog" in res.stdout
 
 
+def test_quiet_prints_no_summary(tmp_path):
+    res = run_cli("replay", require(SAMPLE_LOG), "--out", tmp_path / "q.mcap", "-q")
+    assert res.returncode == 0 and res.stdout == "" and res.stderr == "", res.stdout + res.stderr
+    # a damaged log still says what is wrong with it, as warnings
+    cut = tmp_path / "cut.bin"
+    cut.write_bytes(require(LOG171).read_bytes()[:1_000_003])
+    res = run_cli("replay", cut, "--out", tmp_path / "cut.mcap", "-q")
+    assert res.returncode == 3 and res.stdout == "" and "WARNING" in res.stderr and "truncated" in res.stderr
+
+
+def test_sim_record_makes_its_folder(tmp_path):
+    """`sim --record` makes its record's folder as `run` does, here relative to the directory it runs in."""
+    res = run_cli("sim", "--listen", "udpout:127.0.0.1:9", "--end", "1", "--speed", "5", "--record",
+                  "out/sim/gps_input.jsonl", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert (tmp_path / "out" / "sim" / "gps_input.jsonl").is_file()
+
+
 BAD_INPUTS = {
     "random": lambda: np.random.default_rng(1).bytes(50_000),
     "empty": lambda: b"",
