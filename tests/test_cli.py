@@ -48,6 +48,34 @@ def test_replay_every_real_log_then_inspect(log, tmp_path):
     assert ins.returncode == 0 and "/input/gnss" in ins.stdout
 
 
+def test_tlog_replay_shows_the_autopilots_track_and_log_for_foxglove(tmp_path):
+    """The autopilot's own position (GLOBAL_POSITION_INT) is a Map track beside ours and its STATUSTEXT is on
+    foxglove.Log; every LocationFix/Log is stamped with its UTC log time and each track has its own frame_id."""
+    import json
+
+    from pymavlink import mavutil
+
+    out = tmp_path / "t.mcap"
+    assert run_cli("replay", require(LOG_TLOG), "--out", out).returncode == 0
+    log = mavutil.mavlink_connection(str(LOG_TLOG))
+    positions = 0
+    while (m := log.recv_match(type="GLOBAL_POSITION_INT")) is not None:
+        positions += m.get_srcSystem() == 1 and m.get_srcComponent() == 1 and (m.lat, m.lon) != (0, 0)
+    topics = {t.topic: t for t in summarize(out).topics}
+    assert topics["/map/autopilot"].count == topics["/input/autopilot_position"].count == positions > 1000
+    assert topics["/log/autopilot"].count == topics["/input/statustext"].count > 0
+    assert topics["/log/autopilot"].schema_name == "foxglove.Log"
+    frames: dict[str, set] = {}
+    for topic, log_ns, data in iter_payloads(out):
+        if topic.startswith(("/map/", "/log/")):
+            p = json.loads(data)
+            assert p["timestamp"]["sec"] * 10**9 + p["timestamp"]["nsec"] == log_ns > 1_500_000_000 * 10**9  # UTC
+            frames.setdefault(topic, set()).add(p.get("frame_id"))
+    tracks = {t: f for t, f in frames.items() if t.startswith("/map/")}
+    assert {"/map/autopilot", "/map/gnss", "/map/fused"} <= set(tracks)
+    assert all(len(f) == 1 for f in tracks.values()) and len(set.union(*tracks.values())) == len(tracks)
+
+
 def test_erle_summary_reports_inflight_gap(tmp_path):
     res = run_cli("replay", require(LOG_ERLE), "--out", tmp_path / "e.mcap")
     assert res.returncode == 0
