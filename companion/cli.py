@@ -15,6 +15,11 @@ import sys
 from pathlib import Path
 
 from companion import __version__
+from companion.console import bar_label as _bar_label  # noqa: F401 - (the names tests and tools know)
+from companion.console import progress_bar as _progress_bar
+from companion.console import short_label as _short_label
+from companion.console import summary_line as _summary_line
+from companion.console import warn_quietly as _warn_quietly
 
 EXIT_OK = 0
 EXIT_ERROR = 2  # unusable input or settings: nothing (useful) was done
@@ -35,33 +40,6 @@ class UsageError(Exception):
 
 def _default_out(name: str) -> Path:
     return Path("out") / f"{name}.mcap"
-
-
-def _short_label(text: str, width: int) -> str:
-    """``text`` cut in the middle to at most ``width`` characters (a long log name keeps its ends)."""
-    if len(text) <= width:
-        return text
-    keep = max(1, width - 1)
-    return text[: (keep + 1) // 2] + "…" + text[len(text) - keep // 2:]
-
-
-def _bar_label(desc: str, columns: int) -> str:
-    """The progress bar's label at a terminal ``columns`` wide: the counts, ETA and rate need ~45 columns and the bar
-    itself at least 13, so the label gets the rest (at least 8), cut in the middle."""
-    return _short_label(desc, max(8, columns - 58))
-
-
-def _progress_bar(total: int | None, desc: str, quiet: bool):
-    import shutil
-
-    from tqdm import tqdm
-
-    desc = _bar_label(desc, shutil.get_terminal_size((80, 24)).columns)
-
-    # disable=None: shown on a terminal, silent when stderr is a file or a pipe (CI logs stay clean)
-    return tqdm(
-        total=total, desc=desc, unit="B", unit_scale=True, file=sys.stderr, disable=True if quiet else None, leave=False
-    )
 
 
 async def _drive(source, pipeline, recorder, *, realtime_factor, bar) -> str | None:
@@ -131,17 +109,6 @@ def _stage_label(stage) -> str:
     name = type(stage).__name__
     name = name[:-5] if name.endswith("Stage") and len(name) > 5 else name
     return _short_label(name.lower(), 12)
-
-
-def _summary_line(label: str, text: str) -> str:
-    """``label`` in a 12-column field, then ``text`` wrapped to the terminal (at least 60 columns), continuation lines
-    under the text."""
-    import shutil
-    import textwrap
-
-    width = max(60, shutil.get_terminal_size((80, 24)).columns)
-    return textwrap.fill(text, width=width, initial_indent=f"{label:<12} ", subsequent_indent=" " * 13,
-                         break_on_hyphens=False, break_long_words=False)
 
 
 def _print_labelled(line: str) -> None:
@@ -267,14 +234,6 @@ def cmd_replay(args) -> int:
     return EXIT_DAMAGED if _damaged(source) else EXIT_OK
 
 
-def _warn_quietly(warnings: list[str]) -> None:
-    """A source's warnings at WARNING (what ``-q`` still shows), other systems' traffic left out as in the summary."""
-    log = logging.getLogger("companion.replay")
-    for w in warnings:
-        if not ("other system" in w and w.startswith("dropped")):
-            log.warning("%s", w)
-
-
 def _damaged(source) -> bool:
     return any(w.startswith(("truncated", "stopped reading", "skipped", "the last")) for w in source.info.warnings)
 
@@ -387,6 +346,16 @@ def cmd_sim(args) -> int:
         return run_sim(args)
     except ValueError as err:
         raise UsageError(str(err)) from None
+
+
+def cmd_convert(args) -> int:
+    from companion.record.convert import run_convert
+
+    log = Path(args.log)
+    out = Path(args.out) if args.out else Path("out") / f"{log.stem}-all.mcap"
+    _refuse_overwriting_inputs(out, [log])
+    rc = run_convert(log, out, quiet=bool(args.quiet))
+    return {"ok": EXIT_OK, "damaged": EXIT_DAMAGED, "stopped": EXIT_INTERRUPTED}[rc]
 
 
 def cmd_inspect(args) -> int:
@@ -517,6 +486,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "reconnects within its 8 s back-off; 0: serve until the flight ends or SIGTERM)")
     v.set_defaults(func=cmd_sim)
 
+    c = sub.add_parser("convert", help="every message of a dataflash .bin or telemetry .tlog into MCAP, each type on its "
+                                       "own topic with its schema (for Foxglove, which cannot open either)")
+    c.add_argument("log", help="log file (.bin or .tlog, recognised by content)")
+    c.add_argument("--out", help="MCAP file to write (default: out/<log name>-all.mcap)")
+    c.set_defaults(func=cmd_convert)
+
     i = sub.add_parser("inspect", help="summarise an MCAP record: topics, counts, time span")
     i.add_argument("file", help="an .mcap record written by replay or run (a killed run's file is read up to where it ends)")
     i.set_defaults(func=cmd_inspect)
@@ -532,7 +507,8 @@ _EXIT_LINES = {
     "ok_sim": "  0    done: the flight ended, the companion went quiet (--idle-exit), or SIGTERM / Ctrl-C",
 }
 _EXITS = {None: ("ok_run", "error", "damaged", "int"), "replay": ("ok", "error", "damaged", "int"),
-          "run": ("ok_run", "error", "int"), "sim": ("ok_sim", "error"), "inspect": ("ok", "error")}
+          "run": ("ok_run", "error", "int"), "sim": ("ok_sim", "error"), "inspect": ("ok", "error"),
+          "convert": ("ok", "error", "damaged", "int")}
 
 
 def _epilog(command: str | None) -> str:
