@@ -195,9 +195,9 @@ def _dataflash(log: Path, rec: Recorder, conv: Conversion, on_progress, stop_req
 
 def _df_channel(fmt, names_used: Counter) -> tuple:
     """Topic, schema name, schema, columns and boot-time column of a new format definition; a type defined again
-    differently (logs one after another) gets a topic of its own (``NAME#2``)."""
+    differently (logs one after another) gets a topic of its own (``NAME_2``)."""
     names_used[fmt.name] += 1
-    suffix = "" if names_used[fmt.name] == 1 else f"#{names_used[fmt.name]}"
+    suffix = "" if names_used[fmt.name] == 1 else f"_{names_used[fmt.name]}"
     schema = dataflash_schema(fmt)
     arrays = tuple(c for c, ch in zip(fmt.columns, fmt.chars) if ch == "a")
     return (f"{DATAFLASH_PREFIX}{fmt.name}{suffix}", f"ardupilot.dataflash.{fmt.name}{suffix}", schema,

@@ -12,8 +12,8 @@ its oldest messages, see ``message_backlog_size``), so a viewer never holds back
 
 Which viewers connect: foxglove-sdk's server speaks the WebSocket subprotocol ``foxglove.sdk.v1`` only (since the
 SDK's first release, rust/foxglove/src/websocket/handshake.rs), and answers a client that does not offer it with HTTP
-400. Foxglove's app offers it, Lichtblick from 1.22.1 on (its PR #819); Foxglove Studio 1.x and Lichtblick up to
-1.22.0 offer ``foxglove.websocket.v1`` alone and are refused. The SDK logs such a client as a bare "handshake failed"
+400. Foxglove's app offers it, Lichtblick from 1.22.1 on (the release that added it); Foxglove Studio 1.x and
+Lichtblick up to 1.22.0 offer ``foxglove.websocket.v1`` alone and are refused. The SDK logs such a client as a bare "handshake failed"
 through Python's logging (logger ``foxglove``): :class:`_SdkLog` says it in the companion's log with the reason.
 ``close()`` stops the server, which sends every client a close frame.
 """
