@@ -9,8 +9,6 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -18,7 +16,7 @@ from pathlib import Path
 from companion.record.convert import convert_log
 from companion.shared_data import shared_logs_dir
 from replay.harness.results import md_table, publish, results_file
-from replay.live.throughput import LOG171, _RSS, extend_log, pymavlink_raw
+from replay.live.throughput import LOG171, extend_log, peak_rss_mib, pymavlink_raw
 
 
 def speed_table(logs: list[Path], repeat: int, tmp: Path) -> str:
@@ -39,20 +37,12 @@ def speed_table(logs: list[Path], repeat: int, tmp: Path) -> str:
                      "ratio (pymavlink / convert)"], rows)
 
 
-def peak_rss_mib(log: Path, out: Path) -> tuple[float, float]:
-    t0 = os.times()
-    res = subprocess.run([sys.executable, "-c", _RSS, sys.executable, "-m", "companion.cli", "convert", str(log),
-                          "--out", str(out), "--quiet"], capture_output=True, text=True, check=True)
-    t1 = os.times()
-    return int(res.stdout.split()[-1]) / 1024, (t1.children_user - t0.children_user) + (t1.children_system - t0.children_system)
-
-
 def memory_table(hours: float, tmp: Path) -> str:
     rows = []
     for label, target in (("5 min", 300.0), (f"{hours:g} h", hours * 3600)):
         log = tmp / "long.bin"
         span = extend_log(LOG171, log, target)
-        rss, cpu = peak_rss_mib(log, tmp / "long.mcap")
+        rss, cpu = peak_rss_mib(log, tmp / "long.mcap", "convert")
         rows.append([label, f"{span:.0f}", f"{log.stat().st_size / 1e6:.1f}", f"{rss:.0f}", f"{cpu:.1f}"])
         log.unlink()
     ratio = float(rows[1][3]) / float(rows[0][3])
