@@ -4,7 +4,8 @@
 #   ./dev.sh test [ARGS]     run the whole test suite (what .ci/run calls)
 #   ./dev.sh setup           only create/refresh the production environment
 #   ./dev.sh compile-bytecode VENV   (setup's last step, also for replay.live.install_footprint)
-# Two venvs: .venv is the production install (`pip install .`, no test extras, no editable link);
+# Two venvs: .venv is the production install (`pip install .`: the core, no extras, no editable link, bytecode for
+# the MAVLink dialects in use only: compile_bytecode);
 # .venv-test is the developer's (`pip install -e .[test]`: pytest, jsonschema, websockets, dask).
 # Idempotent: a venv is reused; dependencies are reinstalled only when pyproject.toml (or, for .venv,
 # the source) changes.

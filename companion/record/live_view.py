@@ -61,6 +61,7 @@ def _route_sdk_log() -> None:
     sdk = logging.getLogger("foxglove")
     if not any(isinstance(h, _SdkLog) for h in sdk.handlers):
         sdk.addHandler(_SdkLog())
+        sdk.setLevel(logging.INFO)  # (clients coming and going are INFO; the root logger would drop them)
         sdk.propagate = False
 
 
