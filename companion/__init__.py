@@ -1,8 +1,4 @@
 """companion: real-time navigation companion for ArduPilot vehicles."""
 
-from importlib.metadata import PackageNotFoundError, version
-
-try:
-    __version__ = version("companion")
-except PackageNotFoundError:  # running from a source tree without installation
-    __version__ = "0.0.0+unknown"
+#: the one place the version is set: pyproject.toml reads it (setuptools' attr:, without importing the package)
+__version__ = "0.1.0"

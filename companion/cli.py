@@ -7,7 +7,6 @@ SIGTERM stop the work, finalise the MCAP record and print the summary of what wa
 from __future__ import annotations
 
 import argparse
-import asyncio
 import json
 import os
 import logging
@@ -16,6 +15,11 @@ import sys
 from pathlib import Path
 
 from companion import __version__
+from companion.console import bar_label as _bar_label  # noqa: F401 - (the names tests and tools know)
+from companion.console import progress_bar as _progress_bar
+from companion.console import short_label as _short_label
+from companion.console import summary_line as _summary_line
+from companion.console import warn_quietly as _warn_quietly
 
 EXIT_OK = 0
 EXIT_ERROR = 2  # unusable input or settings: nothing (useful) was done
@@ -38,35 +42,10 @@ def _default_out(name: str) -> Path:
     return Path("out") / f"{name}.mcap"
 
 
-def _short_label(text: str, width: int) -> str:
-    """``text`` cut in the middle to at most ``width`` characters (a long log name keeps its ends)."""
-    if len(text) <= width:
-        return text
-    keep = max(1, width - 1)
-    return text[: (keep + 1) // 2] + "…" + text[len(text) - keep // 2:]
-
-
-def _bar_label(desc: str, columns: int) -> str:
-    """The progress bar's label at a terminal ``columns`` wide: the counts, ETA and rate need ~45 columns and the bar
-    itself at least 13, so the label gets the rest (at least 8), cut in the middle."""
-    return _short_label(desc, max(8, columns - 58))
-
-
-def _progress_bar(total: int | None, desc: str, quiet: bool):
-    import shutil
-
-    from tqdm import tqdm
-
-    desc = _bar_label(desc, shutil.get_terminal_size((80, 24)).columns)
-
-    # disable=None: shown on a terminal, silent when stderr is a file or a pipe (CI logs stay clean)
-    return tqdm(
-        total=total, desc=desc, unit="B", unit_scale=True, file=sys.stderr, disable=True if quiet else None, leave=False
-    )
-
-
 async def _drive(source, pipeline, recorder, *, realtime_factor, bar) -> str | None:
     """Run to the end or to a signal. Returns the name of the signal that stopped it, or None."""
+    import asyncio
+
     from companion.pipeline.core import run_source
 
     loop = asyncio.get_running_loop()
@@ -130,17 +109,6 @@ def _stage_label(stage) -> str:
     name = type(stage).__name__
     name = name[:-5] if name.endswith("Stage") and len(name) > 5 else name
     return _short_label(name.lower(), 12)
-
-
-def _summary_line(label: str, text: str) -> str:
-    """``label`` in a 12-column field, then ``text`` wrapped to the terminal (at least 60 columns), continuation lines
-    under the text."""
-    import shutil
-    import textwrap
-
-    width = max(60, shutil.get_terminal_size((80, 24)).columns)
-    return textwrap.fill(text, width=width, initial_indent=f"{label:<12} ", subsequent_indent=" " * 13,
-                         break_on_hyphens=False, break_long_words=False)
 
 
 def _print_labelled(line: str) -> None:
@@ -213,6 +181,8 @@ def _refuse_overwriting_inputs(out: Path, inputs: list[Path]) -> None:
 
 
 def cmd_replay(args) -> int:
+    import asyncio
+
     from companion.pipeline.core import wall_time_s
     from companion.record import Recorder
     from companion.sources import FileSource
@@ -232,7 +202,7 @@ def cmd_replay(args) -> int:
                         flush_interval_s=REPLAY_FLUSH_INTERVAL_S)
     try:
         pipeline = _build_pipeline(recorder, args)
-    except UsageError:
+    except (UsageError, ImportError):  # (an ImportError: companion.extras.MissingExtra, a feature's extra)
         recorder.close()
         out.unlink(missing_ok=True)
         raise
@@ -251,11 +221,14 @@ def cmd_replay(args) -> int:
         _finish_record(recorder, source, pipeline, config, stopped_by)
         if not pipeline.stats.counts:
             out.unlink(missing_ok=True)  # an error before the first event leaves no empty record behind
-    _print_summary(source, pipeline, out, stopped_by, wall_time_s() - t0)
-    if args.gravity_map:
-        for stage in pipeline.stages:
-            for line in stage.summary_lines():
-                _print_labelled(line)
+    if args.quiet:  # -q: no summary; what went wrong with the log as warnings
+        _warn_quietly(source.info.warnings)
+    else:
+        _print_summary(source, pipeline, out, stopped_by, wall_time_s() - t0)
+        if args.gravity_map:
+            for stage in pipeline.stages:
+                for line in stage.summary_lines():
+                    _print_labelled(line)
     if stopped_by:
         return EXIT_INTERRUPTED
     return EXIT_DAMAGED if _damaged(source) else EXIT_OK
@@ -322,11 +295,13 @@ def cmd_run(args) -> int:
         recorder = Recorder(out, **rec_kw)
     try:
         runtime = Runtime(config, recorder)
-    except ValueError as err:  # the gravity map (MapFormatError is a ValueError)
+    except (ValueError, ImportError) as err:  # the gravity map (MapFormatError is a ValueError) or its extra
         recorder.close()
         if live_view is not None:
             live_view.close()
         out.unlink(missing_ok=True)
+        if isinstance(err, ImportError):
+            raise
         raise UsageError(f"gravity.map {config.gravity.map}: {err}") from None
     meta = {"command": "run", "companion_version": __version__, **config.as_flat_dict()}
     t0 = wall_time_s()
@@ -342,7 +317,15 @@ def cmd_run(args) -> int:
         _finish_record(recorder, runtime, runtime.pipeline, meta, stopped_by)
         if live_view is not None:
             live_view.close()
-    _print_summary(runtime, runtime.pipeline, recorder.path, stopped_by, wall_time_s() - t0,
+    if not args.quiet:  # -q: no summary (a write error was said on stderr when it happened)
+        _print_run_summary(runtime, recorder, stopped_by, wall_time_s() - t0)
+    # a service stopped on purpose (SIGTERM, --duration) exits cleanly
+    args.exit_now = True  # everything is written: the process may skip the interpreter's teardown (see main)
+    return EXIT_INTERRUPTED if stopped_by == "SIGINT" else EXIT_OK
+
+
+def _print_run_summary(runtime, recorder, stopped_by: str | None, elapsed_s: float) -> None:
+    _print_summary(runtime, runtime.pipeline, recorder.path, stopped_by, elapsed_s,
                    recorded=recorder.write_error is None)
     for path in getattr(recorder, "paths", [])[:-1]:
         print(f"record       {path} (earlier segment)")
@@ -354,9 +337,6 @@ def cmd_run(args) -> int:
               f"({recorder.dropped_after_error} messages not recorded)")
     for line in runtime.summary_lines():
         _print_labelled(line)
-    # a service stopped on purpose (SIGTERM, --duration) exits cleanly
-    args.exit_now = True  # everything is written: the process may skip the interpreter's teardown (see main)
-    return EXIT_INTERRUPTED if stopped_by == "SIGINT" else EXIT_OK
 
 
 def cmd_sim(args) -> int:
@@ -366,6 +346,16 @@ def cmd_sim(args) -> int:
         return run_sim(args)
     except ValueError as err:
         raise UsageError(str(err)) from None
+
+
+def cmd_convert(args) -> int:
+    from companion.record.convert import run_convert
+
+    log = Path(args.log)
+    out = Path(args.out) if args.out else Path("out") / f"{log.stem}-all.mcap"
+    _refuse_overwriting_inputs(out, [log])
+    rc = run_convert(log, out, quiet=bool(args.quiet))
+    return {"ok": EXIT_OK, "damaged": EXIT_DAMAGED, "stopped": EXIT_INTERRUPTED}[rc]
 
 
 def cmd_inspect(args) -> int:
@@ -496,6 +486,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "reconnects within its 8 s back-off; 0: serve until the flight ends or SIGTERM)")
     v.set_defaults(func=cmd_sim)
 
+    c = sub.add_parser("convert", help="every message of a dataflash .bin or telemetry .tlog into MCAP, each type on its "
+                                       "own topic with its schema (for Foxglove, which cannot open either)")
+    c.add_argument("log", help="log file (.bin or .tlog, recognised by content)")
+    c.add_argument("--out", help="MCAP file to write (default: out/<log name>-all.mcap)")
+    c.set_defaults(func=cmd_convert)
+
     i = sub.add_parser("inspect", help="summarise an MCAP record: topics, counts, time span")
     i.add_argument("file", help="an .mcap record written by replay or run (a killed run's file is read up to where it ends)")
     i.set_defaults(func=cmd_inspect)
@@ -511,7 +507,8 @@ _EXIT_LINES = {
     "ok_sim": "  0    done: the flight ended, the companion went quiet (--idle-exit), or SIGTERM / Ctrl-C",
 }
 _EXITS = {None: ("ok_run", "error", "damaged", "int"), "replay": ("ok", "error", "damaged", "int"),
-          "run": ("ok_run", "error", "int"), "sim": ("ok_sim", "error"), "inspect": ("ok", "error")}
+          "run": ("ok_run", "error", "int"), "sim": ("ok_sim", "error"), "inspect": ("ok", "error"),
+          "convert": ("ok", "error", "damaged", "int")}
 
 
 def _epilog(command: str | None) -> str:
@@ -525,7 +522,7 @@ _EPILOG = _epilog(None)
 def _add_verbosity(parser: argparse.ArgumentParser, default) -> None:
     parser.add_argument("-v", "--verbose", action="count", default=default, help="more log output (DEBUG)")
     parser.add_argument("-q", "--quiet", action="count", default=default,
-                        help="less output: no progress bar, only warnings (-qq: only errors)")
+                        help="less output: no progress bar, no summary, only warnings (-qq: only errors)")
 
 
 def _positive_float(text: str) -> float:
@@ -539,11 +536,11 @@ def _positive_float(text: str) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)  # --version and --help end here, before the package's heavy imports
+    from companion.extras import MissingExtra
+    from companion.logsetup import configure, stderr_line
     from companion.record import RecordError
     from companion.sources import SourceError
-
-    args = build_parser().parse_args(argv)
-    from companion.logsetup import configure, stderr_line
 
     configure(getattr(args, "verbose", 0) or 0, getattr(args, "quiet", 0) or 0)
     try:
@@ -556,7 +553,7 @@ def main(argv: list[str] | None = None) -> int:
             sys.stderr.flush()
             os._exit(rc)
         return rc
-    except (SourceError, UsageError, RecordError) as err:
+    except (SourceError, UsageError, RecordError, MissingExtra) as err:
         stderr_line(f"companion: error: {err}")
         return EXIT_ERROR
     except KeyboardInterrupt:

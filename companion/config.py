@@ -30,6 +30,9 @@ DEFAULT_STREAMS_HZ: dict[str, float] = {
     "RAW_IMU": 50.0,
     "ATTITUDE": 10.0,
     "SYSTEM_TIME": 1.0,
+    # the autopilot's own position: the Map track /map/autopilot beside ours (and, with gravity aiding, the
+    # navigator's vertical aid)
+    "GLOBAL_POSITION_INT": 5.0,
 }
 #: Messages SET_MESSAGE_INTERVAL may be asked for (what the decoder understands).
 STREAMABLE = ("GPS_RAW_INT", "GPS2_RAW", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "ATTITUDE", "SYSTEM_TIME",

@@ -221,6 +221,19 @@ class AutopilotAltitude(Event):
     topic: ClassVar[str] = "/input/altitude"
 
 
+@dataclass(frozen=True, slots=True)
+class AutopilotPosition(Event):
+    """The autopilot's own position estimate (its EKF's output): MAVLink GLOBAL_POSITION_INT, dataflash POS.
+    Recorded for comparison (the Map track ``/map/autopilot`` beside ours); the navigator does not use it.
+    ``source`` names the message it came from."""
+
+    lat_deg: float
+    lon_deg: float
+    alt_msl_m: float
+    source: str
+    topic: ClassVar[str] = "/input/autopilot_position"
+
+
 #: Every event type, for schema registration and tests.
 EVENT_TYPES: tuple[type[Event], ...] = (
     ImuSample,
@@ -233,4 +246,5 @@ EVENT_TYPES: tuple[type[Event], ...] = (
     GravityReading,
     PositionFix,
     AutopilotAltitude,
+    AutopilotPosition,
 )

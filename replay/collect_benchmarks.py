@@ -14,7 +14,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "replay" / "results"
-ORDER = ["ingest.md", "gap_filling.md", "live.md", "gravity_summary.md", "gravity_speed.md", "gravity_gao.md",
+ORDER = ["install.md", "ingest.md", "gap_filling.md", "live.md", "gravity_summary.md", "gravity_speed.md", "gravity_gao.md",
          "gravity_wu.md", "gravity_li.md", "gravity_liu.md", "gravity_marine.md", "gravity_live_aircraft.md",
          "gravity_live_drone.md", "gravity_live_ship.md", "gravity_live_ship_sequential.md",
          "gravity_live_ship_sequential_vel.md",

@@ -15,6 +15,9 @@ class Collect:
     def write_location(self, *a, **k) -> None:
         pass
 
+    def write_log(self, *a, **k) -> None:
+        pass
+
 
 def subclasses(cls) -> set[type]:
     """Every subclass of a class, at any depth."""

@@ -48,6 +48,34 @@ def test_replay_every_real_log_then_inspect(log, tmp_path):
     assert ins.returncode == 0 and "/input/gnss" in ins.stdout
 
 
+def test_tlog_replay_shows_the_autopilots_track_and_log_for_foxglove(tmp_path):
+    """The autopilot's own position (GLOBAL_POSITION_INT) is a Map track beside ours and its STATUSTEXT is on
+    foxglove.Log; every LocationFix/Log is stamped with its UTC log time and each track has its own frame_id."""
+    import json
+
+    from pymavlink import mavutil
+
+    out = tmp_path / "t.mcap"
+    assert run_cli("replay", require(LOG_TLOG), "--out", out).returncode == 0
+    log = mavutil.mavlink_connection(str(LOG_TLOG))
+    positions = 0
+    while (m := log.recv_match(type="GLOBAL_POSITION_INT")) is not None:
+        positions += m.get_srcSystem() == 1 and m.get_srcComponent() == 1 and (m.lat, m.lon) != (0, 0)
+    topics = {t.topic: t for t in summarize(out).topics}
+    assert topics["/map/autopilot"].count == topics["/input/autopilot_position"].count == positions > 1000
+    assert topics["/log/autopilot"].count == topics["/input/statustext"].count > 0
+    assert topics["/log/autopilot"].schema_name == "foxglove.Log"
+    frames: dict[str, set] = {}
+    for topic, log_ns, data in iter_payloads(out):
+        if topic.startswith(("/map/", "/log/")):
+            p = json.loads(data)
+            assert p["timestamp"]["sec"] * 10**9 + p["timestamp"]["nsec"] == log_ns > 1_500_000_000 * 10**9  # UTC
+            frames.setdefault(topic, set()).add(p.get("frame_id"))
+    tracks = {t: f for t, f in frames.items() if t.startswith("/map/")}
+    assert {"/map/autopilot", "/map/gnss", "/map/fused"} <= set(tracks)
+    assert all(len(f) == 1 for f in tracks.values()) and len(set.union(*tracks.values())) == len(tracks)
+
+
 def test_erle_summary_reports_inflight_gap(tmp_path):
     res = run_cli("replay", require(LOG_ERLE), "--out", tmp_path / "e.mcap")
     assert res.returncode == 0
@@ -79,6 +107,49 @@ def test_default_replay_uses_bundled_sample(tmp_path):
     assert res.returncode == 0, res.stderr
     assert (tmp_path / "out" / "sample_flight.mcap").exists()
     assert "sample_flight.tlog" in res.stdout
+
+
+def test_quiet_prints_no_summary(tmp_path):
+    res = run_cli("replay", require(SAMPLE_LOG), "--out", tmp_path / "q.mcap", "-q")
+    assert res.returncode == 0 and res.stdout == "" and res.stderr == "", res.stdout + res.stderr
+    # a damaged log still says what is wrong with it, as warnings
+    cut = tmp_path / "cut.bin"
+    cut.write_bytes(require(LOG171).read_bytes()[:1_000_003])
+    res = run_cli("replay", cut, "--out", tmp_path / "cut.mcap", "-q")
+    assert res.returncode == 3 and res.stdout == "" and "WARNING" in res.stderr and "truncated" in res.stderr
+
+
+def test_sim_record_makes_its_folder(tmp_path):
+    """`sim --record` makes its record's folder as `run` does, here relative to the directory it runs in."""
+    res = run_cli("sim", "--listen", "udpout:127.0.0.1:9", "--end", "1", "--speed", "5", "--record",
+                  "out/sim/gps_input.jsonl", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert (tmp_path / "out" / "sim" / "gps_input.jsonl").is_file()
+
+
+def test_readme_sim_example_runs_from_any_directory(tmp_path):
+    """The README's hardware-in-the-loop pair, as written (a free port, the flight and the run shortened), from a
+    directory that is not the checkout: `companion` on PATH, --record making its folder."""
+    import re
+    import shlex
+
+    block = re.search(r"```sh\n(companion sim [^\n]*)\n(companion run [^\n]*)\n```", (REPO / "README.md").read_text())
+    assert block, "the README's sim example"
+    port = str(free_port())
+    sim_argv, run_argv = (shlex.split(line.split("#")[0].replace("5760", port).rstrip(" &")) for line in block.groups())
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    sim = subprocess.Popen([*sim_argv, "--end", "26", "--speed", "2"], cwd=tmp_path, env=env, text=True,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        assert sim.stdout.readline().startswith("sim:")  # about to listen
+        run_argv[run_argv.index("--duration") + 1] = "5"
+        res = subprocess.run(run_argv, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+        assert res.returncode == 0 and "Traceback" not in res.stderr, res.stderr[-2000:]
+        assert sim.wait(timeout=120) == 0, sim.stderr.read()
+    finally:
+        if sim.poll() is None:
+            sim.kill()
+    assert (tmp_path / "out" / "sim.jsonl").stat().st_size > 0  # GPS_INPUT received, in the folder it made
 
 
 BAD_INPUTS = {

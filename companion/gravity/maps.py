@@ -188,8 +188,10 @@ def load_grid(path: str | Path, variable: str | None = None, name: str | None = 
     Geographic axes are recognised from units 'degrees_east/north' or names lon/lat; other axes named
     x/y are taken as local metres. Descending axes are flipped. Raises MapFormatError on anything else.
     """
-    import xarray as xr
+    from companion.extras import require
 
+    xr = require("xarray", "gravity", "a netCDF gravity map")
+    require("netCDF4", "gravity", "a netCDF gravity map")  # xarray's reader for the files (else: "no engine")
     path = Path(path)
     if not path.is_file():
         raise MapFormatError(f"gravity grid not found: {path}")
@@ -264,7 +266,9 @@ _TASMAN_LAND_POLYS = (
 
 def tasman_land_mask(gmap: GravityMap) -> np.ndarray:
     """True for marine cells, False over the approximate land polygons (eastern Australia, Tasmania)."""
-    from matplotlib.path import Path as MPath
+    from companion.extras import require
+
+    MPath = require("matplotlib.path", "plots", "the Tasman land mask").Path
 
     lon, lat = np.meshgrid(gmap.lon_deg, gmap.lat_deg)
     pts = np.column_stack([lon.ravel(), lat.ravel()])

@@ -17,11 +17,11 @@ import math
 
 import numpy as np
 
-from companion.events import Attitude, Event, FixType, GnssFix, ImuSample, StatusText
+from companion.events import Attitude, AutopilotPosition, Event, FixType, GnssFix, ImuSample, StatusText
 from companion.timebase import HOLD_REASONS, VehicleClock
 from companion.mavlink.dialect import mavlink
 
-WANTED = ["IMU", "IMU2", "IMU3", "GPS", "GPS2", "GPA", "GPA2", "ATT", "MSG"]
+WANTED = ["IMU", "IMU2", "IMU3", "GPS", "GPS2", "GPA", "GPA2", "ATT", "MSG", "POS"]
 #: beyond these an IMU row is not a measurement (ArduPilot's sensors saturate at 32 g and 2000-4000 deg/s); a
 #: value like 1e22 would otherwise reach the filter's matrices
 MAX_ACCEL_MPS2 = 1000.0
@@ -113,6 +113,8 @@ class DataflashDecoder:
             return self._att(d)
         if base == "MSG":
             return self._msg(d)
+        if base == "POS":
+            return self._pos(d)
         return []
 
     def _imu(self, d: dict, instance: int) -> list[Event]:
@@ -247,6 +249,24 @@ class DataflashDecoder:
         out.append(
             Attitude(t_s=t_s, roll_rad=math.radians(r), pitch_rad=math.radians(p), yaw_rad=math.radians(yaw))
         )
+        return out
+
+    def _pos(self, d: dict) -> list[Event]:
+        """POS: the autopilot's own position (its AHRS/EKF output; logs of older ArduPilot have none)."""
+        boot_s = _boot_s(d, None)
+        lat, lon, alt = _num(d.get("Lat")), _num(d.get("Lng")), _num(d.get("Alt"))
+        if boot_s is None or lat is None or lon is None or alt is None:
+            self._drop("POS without its time or position")
+            return []
+        if lat == 0 and lon == 0:  # no position yet (the EKF has no origin): normal, not counted
+            return []
+        if not (-90 < lat < 90 and -180 < lon < 180 and MIN_ALT_M <= alt <= MAX_ALT_M):
+            self._drop("POS position out of range")
+            return []
+        out: list[Event] = []
+        t_s = self._time(boot_s, out)
+        if t_s is not None:
+            out.append(AutopilotPosition(t_s=t_s, lat_deg=lat, lon_deg=lon, alt_msl_m=alt, source="POS"))
         return out
 
     def _msg(self, d: dict) -> list[Event]:

@@ -125,12 +125,14 @@ class Block:
 
 
 class DataflashStream:
-    """``next_block()`` until it returns None; the damage found is in the attributes (see the module docstring)."""
+    """``next_block()`` until it returns None; the damage found is in the attributes (see the module docstring).
+
+    ``wanted``: the record types to decode; None: every type, the FMT records too (a whole-log conversion)."""
 
     def __init__(self, path: str | os.PathLike, wanted, block_bytes: int = BLOCK_BYTES) -> None:
         self._f = open(path, "rb")
         self.size = os.fstat(self._f.fileno()).st_size
-        self._wanted = frozenset(wanted)
+        self._wanted = None if wanted is None else frozenset(wanted)
         self._block = int(block_bytes)
         self._buf = b""
         self._base = 0  # file offset of _buf[0]
@@ -203,6 +205,12 @@ class DataflashStream:
                             ofs += 1
                             continue
                         lens, want = self._len, self._want  # (a new log: new tables)
+                        if self._wanted is None:  # every record, FMT too
+                            rows = buckets.get(id(FMT_FORMAT))
+                            if rows is None:
+                                rows = buckets[id(FMT_FORMAT)] = Rows(FMT_FORMAT)
+                            order.append((rows, len(rows.offsets)))
+                            rows.offsets.append(ofs)
                     else:
                         fmt = want[t]
                         if fmt is not None:
@@ -253,7 +261,7 @@ class DataflashStream:
             return True  # a damaged redefinition of FMT itself would lose every format after it: keep ours
         self.formats[mtype] = f
         self._len[mtype] = length if length >= 3 else 0
-        self._want[mtype] = f if f.name in self._wanted else None
+        self._want[mtype] = f if self._wanted is None or f.name in self._wanted else None
         return True
 
     def _finish(self, data: bytes, base: int, stop: int) -> None:

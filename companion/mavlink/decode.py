@@ -19,6 +19,7 @@ from companion import units
 from companion.events import (
     Attitude,
     AutopilotAltitude,
+    AutopilotPosition,
     Event,
     FixType,
     GnssFix,
@@ -251,8 +252,17 @@ class MavlinkDecoder:
 
     def _global_position(self, msg, recv_s: float, out: list[Event]) -> None:
         t_s = self._stamp(units.s_from_ms(msg.time_boot_ms), recv_s, out)
-        if t_s is not None:
-            out.append(AutopilotAltitude(t_s=t_s, alt_msl_m=units.m_from_mm(msg.alt)))
+        if t_s is None:
+            return
+        alt = units.m_from_mm(msg.alt)
+        out.append(AutopilotAltitude(t_s=t_s, alt_msl_m=alt))
+        if msg.lat == 0 and msg.lon == 0:  # no position yet (the EKF has no origin)
+            return
+        lat, lon = units.deg_from_degE7(msg.lat), units.deg_from_degE7(msg.lon)
+        if -90.0 < lat < 90.0 and -180.0 < lon < 180.0 and MIN_ALT_M <= alt <= MAX_ALT_M:
+            out.append(AutopilotPosition(t_s=t_s, lat_deg=lat, lon_deg=lon, alt_msl_m=alt, source="GLOBAL_POSITION_INT"))
+        else:
+            self.dropped["GLOBAL_POSITION_INT position out of range"] += 1
 
     def _named_value(self, msg, recv_s: float, out: list[Event]) -> None:
         """A gravimeter's NAMED_VALUE_FLOAT -> GravityReading on the vehicle clock (time_boot_ms; 0: receive time)."""

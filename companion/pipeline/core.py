@@ -26,13 +26,22 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from companion.constants import UERE_M, receiver_sigma
-from companion.events import Event, GnssFix, ImuSample
+from companion.events import Event, GnssFix, ImuSample, StatusText
+from companion.mavlink.dialect import mavlink
 from companion.pipeline.stage import Stage
 from companion.sources.base import Source
 from companion.stats import StreamStats
 
 #: Map-panel track of the raw receiver fixes.
 GNSS_MAP_TOPIC = "/map/gnss"
+#: the autopilot's STATUSTEXT (dataflash MSG) as foxglove.Log, for Foxglove's Log panel
+AUTOPILOT_LOG_TOPIC = "/log/autopilot"
+#: MAV_SEVERITY -> foxglove.LogLevel (DEBUG 1, INFO 2, WARNING 3, ERROR 4, FATAL 5)
+_LOG_LEVEL = {
+    mavlink.MAV_SEVERITY_EMERGENCY: 5, mavlink.MAV_SEVERITY_ALERT: 5, mavlink.MAV_SEVERITY_CRITICAL: 5,
+    mavlink.MAV_SEVERITY_ERROR: 4, mavlink.MAV_SEVERITY_WARNING: 3, mavlink.MAV_SEVERITY_NOTICE: 2,
+    mavlink.MAV_SEVERITY_INFO: 2, mavlink.MAV_SEVERITY_DEBUG: 1,
+}
 
 
 class Sink(Protocol):
@@ -43,6 +52,8 @@ class Sink(Protocol):
     def write_location(
         self, topic: str, t_s: float, lat_deg: float, lon_deg: float, alt_m: float, cov_enu_m2=None
     ) -> None: ...
+
+    def write_log(self, topic: str, t_s: float, level: int, message: str, name: str = "") -> None: ...
 
 
 @dataclass
@@ -95,6 +106,9 @@ class Pipeline:
             track = _MAP_TRACKS.get(type(item).__name__)
             if track is not None and _finite(item.lat_deg, item.lon_deg, item.alt_msl_m):
                 self.sink.write_location(track, item.t_s, item.lat_deg, item.lon_deg, item.alt_msl_m, cov_enu_m2=_cov_enu(item))
+            elif type(item) is StatusText:
+                self.sink.write_log(AUTOPILOT_LOG_TOPIC, item.t_s, _LOG_LEVEL.get(item.severity, 0), item.text,
+                                    "autopilot")
 
     def finish(self) -> None:
         self._finishing = True
@@ -111,7 +125,8 @@ class Pipeline:
 
 #: Outputs that also go to Foxglove's Map panel, one LocationFix track each (GPS_INPUT: what went, or in shadow mode
 #: would go, to the autopilot).
-_MAP_TRACKS = {"FusedState": "/map/fused", "PredictorPoint": "/map/predictor", "GpsInputRecord": "/map/gps_input"}
+_MAP_TRACKS = {"FusedState": "/map/fused", "PredictorPoint": "/map/predictor", "GpsInputRecord": "/map/gps_input",
+               "AutopilotPosition": "/map/autopilot"}
 
 
 def _finite(*vals: float) -> bool:
@@ -172,16 +187,20 @@ async def run_source(
     *,
     realtime_factor: float | None = None,
     on_progress: Callable[[Source, int], None] | None = None,
-    progress_every: int = 5000,
+    progress_interval_s: float = 0.25,
 ) -> None:
     """Drive a source through the pipeline until it ends (or the task is cancelled).
 
     ``realtime_factor``: None replays as fast as possible; 1.0 paces events at the vehicle's own rate
     (2.0 twice as fast). Pacing uses the loop clock only to wait; event times stay the log's.
+    ``on_progress(source, events so far)`` is called every ``progress_interval_s`` of wall time (a display: a paced
+    replay's few events a second refresh it as often as a fast one's thousands); the clock is looked at after every
+    paced event, else every 256 events.
     """
     loop = asyncio.get_running_loop()
     t0_wall = t0_ev = None
     n = 0
+    next_progress = loop.time() + progress_interval_s if on_progress is not None else math.inf
     async for ev in source:
         if realtime_factor:
             if t0_ev is None:
@@ -191,8 +210,9 @@ async def run_source(
                 await asyncio.sleep(delay)
         pipeline.process(ev)
         n += 1
-        if on_progress is not None and n % progress_every == 0:
+        if (realtime_factor or not n & 255) and loop.time() >= next_progress:
             on_progress(source, n)
+            next_progress = loop.time() + progress_interval_s
     pipeline.finish()
 
 

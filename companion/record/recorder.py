@@ -48,6 +48,7 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 import companion
 from companion.events import Event
+from companion.extras import DISTRIBUTION
 from companion.logsetup import stderr_line
 from companion.record.clock import RecordClock
 from companion.record.fast_messages import fast_add_message
@@ -60,6 +61,8 @@ from companion.record.schemas import (
     JSON_SCHEMA_ENCODING,
     LOCATION_FIX_SCHEMA,
     LOCATION_FIX_SCHEMA_NAME,
+    LOG_SCHEMA,
+    LOG_SCHEMA_NAME,
     _plain,
     dataclass_schema,
     drop_unknown,
@@ -284,7 +287,7 @@ class Recorder:
         lon_deg: float,
         alt_m: float,
         cov_enu_m2: Any = None,
-        frame_id: str = "gnss",
+        frame_id: str | None = None,
         *,
         cov_type: int | None = None,
         color_rgba: Sequence[float] | None = None,
@@ -296,7 +299,9 @@ class Recorder:
         NavSatFix; note: ENU, not the NED used elsewhere in companion), nested rows or 9 numbers
         row-major, or None when unknown. ``cov_type`` defaults to DIAGONAL_KNOWN (2) for a diagonal
         matrix, KNOWN (3) otherwise, UNKNOWN (0) for None. ``color_rgba`` (0..1) sets the track colour;
-        ``heading_rad`` is clockwise from north. Non-finite lat/lon/alt raise ValueError.
+        ``heading_rad`` is clockwise from north. Non-finite lat/lon/alt raise ValueError. ``timestamp`` is the
+        message's log time (UTC once the clock knows it); ``frame_id`` defaults to the topic's last part ("fused" for
+        "/map/fused"), so every track has its own.
         """
         if self.write_error is not None and self.live_view is None:
             self.dropped_after_error += 1
@@ -304,6 +309,7 @@ class Recorder:
         if not (math.isfinite(lat_deg) and math.isfinite(lon_deg) and math.isfinite(alt_m)):
             raise ValueError(f"{topic}: non-finite position lat={lat_deg} lon={lon_deg} alt={alt_m}")
         t_ns = _time_ns(t_s)
+        log_ns = self._log_ns(t_ns)
         if cov_enu_m2 is None:
             cov = [0.0] * 9
             ctype = COV_UNKNOWN
@@ -315,8 +321,8 @@ class Recorder:
                 raise ValueError(f"cov_type must be 0..3, not {cov_type!r}")
             ctype = int(cov_type)
         msg: dict[str, Any] = {
-            "timestamp": {"sec": t_ns // 1_000_000_000, "nsec": t_ns % 1_000_000_000},
-            "frame_id": frame_id,
+            "timestamp": _stamp(log_ns),
+            "frame_id": frame_id if frame_id is not None else topic.rpartition("/")[2],
             "latitude": float(lat_deg),
             "longitude": float(lon_deg),
             "altitude": float(alt_m),
@@ -331,7 +337,22 @@ class Recorder:
         channel_id = self._named_channels.get(topic)
         if channel_id is None or self._channel_schema[channel_id] != LOCATION_FIX_SCHEMA_NAME:
             channel_id = self._register_named(topic, LOCATION_FIX_SCHEMA_NAME, LOCATION_FIX_SCHEMA)
-        self._add(channel_id, t_ns, _dumps(msg))
+        self._add(channel_id, t_ns, _dumps(msg), log_ns)
+
+    def write_log(self, topic: str, t_s: float, level: int, message: str, name: str = "") -> None:
+        """Record a text message as ``foxglove.Log`` (what Foxglove's Log panel shows); ``level`` is a foxglove.LogLevel
+        (companion.record.schemas.LOG_*), ``timestamp`` the message's log time."""
+        if self.write_error is not None and self.live_view is None:
+            self.dropped_after_error += 1
+            return
+        t_ns = _time_ns(t_s)
+        log_ns = self._log_ns(t_ns)
+        msg = {"timestamp": _stamp(log_ns), "level": int(level), "message": str(message), "name": name, "file": "",
+               "line": 0}
+        channel_id = self._named_channels.get(topic)
+        if channel_id is None or self._channel_schema[channel_id] != LOG_SCHEMA_NAME:
+            channel_id = self._register_named(topic, LOG_SCHEMA_NAME, LOG_SCHEMA)
+        self._add(channel_id, t_ns, _dumps(msg), log_ns)
 
     def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
         """Add a metadata record (source, configuration, ...). Keys and values must be str."""
@@ -429,11 +450,16 @@ class Recorder:
             stderr_line(f"companion: error: recording stopped, cannot write {self.path}: {why} "
                         f"(navigation and injection go on; {self.path} is not finalised)")
 
-    def _add(self, channel_id: int, t_ns: int, data: bytes) -> None:
+    def _log_ns(self, t_ns: int) -> int:
+        return self.clock.log_ns(t_ns) if self.clock is not None else t_ns
+
+    def _add(self, channel_id: int, t_ns: int, data: bytes, log_ns: int | None = None) -> None:
+        """Write one message at vehicle time ``t_ns``; ``log_ns``: its log time when the caller already took it from
+        the clock (a payload that carries it), else taken here."""
         if self.write_error is not None:  # the live view (Foxglove) goes on without the file
             self.dropped_after_error += 1
             if self.live_view is not None and not self._closed:
-                self._publish(channel_id, self.clock.log_ns(t_ns) if self.clock is not None else t_ns, data)
+                self._publish(channel_id, self._log_ns(t_ns) if log_ns is None else log_ns, data)
             return
         if self._closed:
             raise RecordError(f"{self.path}: the recorder is closed")
@@ -441,7 +467,9 @@ class Recorder:
         try:
             seq = self._seq[channel_id]
             self._seq[channel_id] = seq + 1
-            if self.clock is not None:
+            if log_ns is not None:
+                t_ns = log_ns
+            elif self.clock is not None:
                 t_ns = self.clock.log_ns(t_ns)
             self._add_message(channel_id, t_ns, data, t_ns, seq & 0xFFFFFFFF)
             if self.live_view is not None:
@@ -526,6 +554,11 @@ class Recorder:
         return channel_id
 
 
+def _stamp(log_ns: int) -> dict[str, int]:
+    """Foxglove's time (``sec``, ``nsec``) of a log time in ns."""
+    return {"sec": log_ns // 1_000_000_000, "nsec": log_ns % 1_000_000_000}
+
+
 def _flatten_cov(cov: Any) -> list[float]:
     rows = cov.tolist() if hasattr(cov, "tolist") else cov
     flat: list[float] = []
@@ -544,7 +577,7 @@ def _flatten_cov(cov: Any) -> list[float]:
 def _companion_version() -> str:
     # companion.__version__; the distribution's version if the package was imported as a bare namespace
     # (a stale editable install run from outside the checkout does that).
-    return getattr(companion, "__version__", None) or _dist_version("companion")
+    return getattr(companion, "__version__", None) or _dist_version(DISTRIBUTION)
 
 
 def _dist_version(dist: str) -> str:

@@ -208,6 +208,12 @@ class RotatingRecorder:
         else:
             self._dropped += 1
 
+    def write_log(self, topic: str, t_s: float, *args: Any, **kw: Any) -> None:
+        if self._rotate_for(t_s) or not self._rec.closed:
+            self._rec.write_log(topic, t_s, *args, **kw)
+        else:
+            self._dropped += 1
+
     def add_metadata(self, name: str, data) -> None:
         data = dict(data)
         self._metadata.append((name, data))

@@ -43,6 +43,7 @@ JSON_SCHEMA_ENCODING = "jsonschema"
 JSON_MESSAGE_ENCODING = "json"
 
 LOCATION_FIX_SCHEMA_NAME = "foxglove.LocationFix"
+LOG_SCHEMA_NAME = "foxglove.Log"
 
 def schema_name(cls: type) -> str:
     """MCAP schema name of a dataclass: its module-qualified class name."""
@@ -307,3 +308,47 @@ COV_UNKNOWN = 0
 COV_APPROXIMATED = 1
 COV_DIAGONAL_KNOWN = 2
 COV_KNOWN = 3
+
+
+def _time_schema(description: str) -> dict:
+    return {
+        "type": "object",
+        "title": "time",
+        "properties": {
+            "sec": {"type": "integer", "minimum": 0},
+            "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999},
+        },
+        "description": description,
+    }
+
+
+#: Foxglove's ``foxglove.Log`` JSON schema (foxglove/foxglove-sdk, schemas/jsonschema/Log.json), what the Log panel
+#: shows; a copy for the same reason as LOCATION_FIX_SCHEMA's, checked the same way (tests/record/test_location_fix.py).
+LOG_SCHEMA: dict = {
+    "title": LOG_SCHEMA_NAME,
+    "description": "A log message",
+    "type": "object",
+    "properties": {
+        "timestamp": _time_schema("Timestamp of log message"),
+        "level": {
+            "title": "foxglove.LogLevel",
+            "description": "Log level",
+            "oneOf": [
+                {"title": "UNKNOWN", "const": 0, "description": "Unknown log level"},
+                {"title": "DEBUG", "const": 1, "description": "Debug log level"},
+                {"title": "INFO", "const": 2, "description": "Info log level"},
+                {"title": "WARNING", "const": 3, "description": "Warning log level"},
+                {"title": "ERROR", "const": 4, "description": "Error log level"},
+                {"title": "FATAL", "const": 5, "description": "Fatal log level"},
+            ],
+        },
+        "message": {"type": "string", "description": "Log message"},
+        "name": {"type": "string", "description": "Process or node name"},
+        "file": {"type": "string", "description": "Filename"},
+        "line": {"type": "integer", "minimum": 0, "description": "Line number in the file"},
+    },
+    "required": ["timestamp", "level", "message", "name", "file", "line"],
+}
+
+#: foxglove.LogLevel values.
+LOG_UNKNOWN, LOG_DEBUG, LOG_INFO, LOG_WARNING, LOG_ERROR, LOG_FATAL = range(6)

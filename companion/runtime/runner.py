@@ -379,6 +379,9 @@ class DeferredSink:
     def write_location(self, *args, **kw) -> None:
         self._pending.append((self.sink.write_location, args, kw))
 
+    def write_log(self, *args, **kw) -> None:
+        self._pending.append((self.sink.write_log, args, kw))
+
     def drain(self) -> None:
         pending, self._pending = self._pending, []
         for fn, args, kw in pending:

@@ -54,8 +54,9 @@ def truth_csv_text(flight: SimulatedFlight, rate_hz: float = TRUTH_RATE_HZ) -> s
 
 def plot_flight(flight: SimulatedFlight, path: Path) -> None:
     """Track (NE) with the GNSS fixes, height and horizontal GNSS error over time; outages shaded."""
-    import matplotlib
+    from companion.extras import require
 
+    matplotlib = require("matplotlib", "plots", "the sample flight's plot")
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 

@@ -136,6 +136,8 @@ def run_sim(args) -> int:
         noise=args.noise,
     )
     key = load_signing_key(args.signing_key_file) if args.signing_key_file else None
+    if args.record:  # its folder made as `companion run` makes its record's
+        Path(args.record).parent.mkdir(parents=True, exist_ok=True)
     sim = VehicleSim(
         playback, args.listen, faults=faults, speed=args.speed, start_s=args.start, end_s=args.end,
         streams=args.streams, loops=args.loops, record=args.record, key=key, seed=args.seed or 0,

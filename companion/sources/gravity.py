@@ -131,10 +131,9 @@ class SerialGravitySource(_LineSource):
         self._port = None
 
     async def _iter(self):
-        try:
-            import serial  # pyserial (already used by the live MAVLink link)
-        except ImportError as exc:
-            raise SourceError("serial gravity input needs pyserial") from exc
+        from companion.extras import require
+
+        serial = require("serial", "gravity", "a serial gravimeter")  # pyserial
         try:
             self._port = await asyncio.to_thread(serial.Serial, self.device, self.baud, timeout=1.0)
         except Exception as exc:  # serial.SerialException and OSError

@@ -61,6 +61,9 @@ class _Collect:
     def write_location(self, *a, **k):
         pass
 
+    def write_log(self, *a, **k):
+        pass
+
 
 def run_gravity_chain(events: list[Event], lmap: LocalGravityMap, placement: Placement, deny_gnss_after_s: float,
                       matcher: Matcher | None, gravimeter: SimulatedGravimeter | None = None,

@@ -174,10 +174,10 @@ _RSS = "import resource, subprocess, sys; subprocess.run(sys.argv[1:], stdout=su
        "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)"
 
 
-def peak_rss_mib(log: Path, out: Path) -> tuple[float, float]:
-    """(peak RSS MiB, CPU s) of ``companion replay LOG`` in a child process."""
+def peak_rss_mib(log: Path, out: Path, command: str = "replay") -> tuple[float, float]:
+    """(peak RSS MiB, CPU s) of ``companion COMMAND LOG`` (replay, convert) in a child process."""
     t0 = os.times()
-    res = subprocess.run([sys.executable, "-c", _RSS, sys.executable, "-m", "companion.cli", "replay", str(log),
+    res = subprocess.run([sys.executable, "-c", _RSS, sys.executable, "-m", "companion.cli", command, str(log),
                           "--out", str(out), "--quiet"], capture_output=True, text=True, check=True)
     t1 = os.times()
     return int(res.stdout.split()[-1]) / 1024, (t1.children_user - t0.children_user) + (t1.children_system - t0.children_system)

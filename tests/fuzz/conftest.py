@@ -46,7 +46,7 @@ def replay_bytes(tmp_path: Path, data: bytes, suffix: str = ".bin", name: str = 
     log = tmp_path / f"{name}{suffix}"
     log.write_bytes(data)
     out = tmp_path / f"{name}.mcap"
-    return run_cli("replay", log, "--out", out, "--quiet", timeout=timeout), log, out
+    return run_cli("replay", log, "--out", out, timeout=timeout), log, out  # (the summary: read by some tests)
 
 
 def one_line_error(res) -> bool:

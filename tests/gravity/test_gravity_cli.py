@@ -11,7 +11,7 @@ from tests.conftest import AK_MAP, SAMPLE_LOG, require
 
 def _replay(tmp_path, name, *extra):
     out = tmp_path / f"{name}.mcap"
-    res = subprocess.run([sys.executable, "-m", "companion.cli", "replay", str(SAMPLE_LOG), "--out", str(out), "--quiet",
+    res = subprocess.run([sys.executable, "-m", "companion.cli", "replay", str(SAMPLE_LOG), "--out", str(out),
                           "--gravity-map", str(require(AK_MAP)), "--deny-gnss-after", "60", "--gravity-place",
                           "56.0,-144.0", "--gravity-sigma-mgal", "1.0", *extra], capture_output=True, text=True,
                          timeout=300)

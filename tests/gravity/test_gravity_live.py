@@ -55,7 +55,8 @@ def test_named_value_float_becomes_gravity_reading_on_the_vehicle_clock():
     from companion.events import AutopilotAltitude
     from companion.sim.mavlink_out import global_position_int
 
-    (a,) = dec.decode(_msgs(global_position_int(12.0, -40.0, 156.0, 301.25, 0.0, (150.0, 0.0, 0.0), 0.0))[0], 2.0)
+    a, _position = dec.decode(_msgs(global_position_int(12.0, -40.0, 156.0, 301.25, 0.0, (150.0, 0.0, 0.0), 0.0))[0],
+                              2.0)  # (and the autopilot's position, its Map track)
     assert isinstance(a, AutopilotAltitude) and a.t_s == pytest.approx(12.0) and a.alt_msl_m == pytest.approx(301.25)
     # without a gravity decoder the message is ignored
     plain = MavlinkDecoder()
@@ -176,7 +177,11 @@ def test_gravity_settings_are_checked_at_start(tmp_path):
     assert nav.gnss_sigma_model == "accuracy" and nav.fuse_predictor is False and nav.uere_h_m == 2.0
     assert nav.fuse_autopilot_alt  # vertical aid from the autopilot's altitude ...
     assert g_cfg.streams.rates_hz["GLOBAL_POSITION_INT"] == 5.0  # ... which is requested
-    assert "GLOBAL_POSITION_INT" not in load_config(None, base).streams.rates_hz
+    # requested without gravity too (the autopilot's Map track); turned off, gravity aiding still requests it
+    assert load_config(None, base).streams.rates_hz["GLOBAL_POSITION_INT"] == 5.0
+    off = {**base, "streams.GLOBAL_POSITION_INT": 0}
+    assert "GLOBAL_POSITION_INT" not in load_config(None, off).streams.rates_hz
+    assert load_config(None, {**off, "gravity.map": str(grid)}).streams.rates_hz["GLOBAL_POSITION_INT"] == 5.0
     for over, text in [({"gravity.map": str(tmp_path / "missing.nc")}, "is not a file"),
                        ({"gravity.map": str(grid), "gravity.matcher": "tercom"}, "gravity.matcher"),
                        ({"gravity.map": str(grid), "gravity.named_value": "ELEVENCHARS"}, "1-10 characters"),

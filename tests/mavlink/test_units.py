@@ -127,3 +127,35 @@ def test_attitude_out_of_range_is_dropped(roll, pitch, yaw, ok):
     out = dec.decode(_wire(mavlink.MAVLink_attitude_message(5000, roll, pitch, yaw, 0.0, 0.0, 0.0)), 1.0)
     assert (len(out) == 1) == ok
     assert dec.dropped["ATTITUDE out of range"] == (0 if ok else 1)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_global_position_int_roundtrip_is_the_autopilots_position(seed):
+    from companion.events import AutopilotAltitude, AutopilotPosition
+
+    rng = np.random.default_rng(seed)
+    lat, lon = int(rng.integers(-900_000_000, 900_000_000)), int(rng.integers(-1_800_000_000, 1_800_000_000))
+    alt = int(rng.integers(-400_000, 9_000_000))
+    dec = _decoder()
+    msg = _wire(mavlink.MAVLink_global_position_int_message(50_000, lat, lon, alt, 1000, 10, -20, 5, 9000))
+    altitude, pos = dec.decode(msg, 1.0)
+    assert isinstance(altitude, AutopilotAltitude) and isinstance(pos, AutopilotPosition)
+    assert pos.t_s == altitude.t_s == pytest.approx(50.0) and pos.source == "GLOBAL_POSITION_INT"
+    assert (units.degE7_from_deg(pos.lat_deg), units.degE7_from_deg(pos.lon_deg), units.mm_from_m(pos.alt_msl_m)) == (
+        lat, lon, alt)
+    # no position yet (an EKF without origin sends 0, 0): the altitude only
+    none_yet = _wire(mavlink.MAVLink_global_position_int_message(50_100, 0, 0, alt, 1000, 0, 0, 0, 9000))
+    assert [type(e) for e in dec.decode(none_yet, 1.1)] == [AutopilotAltitude]
+
+
+def test_dataflash_pos_is_the_autopilots_position():
+    from companion.events import AutopilotPosition
+    from companion.mavlink.dataflash import DataflashDecoder, _Row
+
+    dec = DataflashDecoder()
+    (pos,) = dec.decode(_Row("POS", {"TimeUS": 12_500_000, "Lat": 47.3977419, "Lng": 8.5455938, "Alt": 488.2,
+                                     "RelHomeAlt": 0.1, "RelOriginAlt": 0.1}))
+    assert pos == AutopilotPosition(t_s=12.5, lat_deg=47.3977419, lon_deg=8.5455938, alt_msl_m=488.2, source="POS")
+    assert dec.decode(_Row("POS", {"TimeUS": 12_600_000, "Lat": 0.0, "Lng": 0.0, "Alt": 0.0})) == []  # none yet
+    assert dec.decode(_Row("POS", {"TimeUS": 12_700_000, "Lat": 95.0, "Lng": 8.5, "Alt": 488.0})) == []
+    assert dec.dropped == {"POS position out of range": 1}

@@ -63,3 +63,27 @@ def test_a_filter_stage_decides_what_later_stages_see_and_the_denial_passes_the_
     assert not any(isinstance(x, WithheldFix) for x in rec.items)  # the truth is not recorded again ...
     assert sum(isinstance(x, GnssFix) for x in rec.items) == 5  # ... the fixes are, as input events
     assert denial.metadata() == {"gnss_withheld_after_s": "2", "gnss_withheld": "3"}
+
+
+def test_progress_is_reported_by_time_also_when_paced():
+    """A paced replay of a few events a second refreshes its progress a few times a second, not every N events."""
+    import asyncio
+
+    from companion.pipeline.core import run_source
+
+    class _Source:
+        def __init__(self, n, dt_s):
+            self.events = [ImuSample(k * dt_s, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), 0) for k in range(n)]
+
+        async def _gen(self):
+            for ev in self.events:
+                yield ev
+
+        def __aiter__(self):
+            return self._gen()
+
+    calls: list[int] = []
+    # 11 events 0.1 s apart at real time: at least 1 s of wall time, reported every 0.25 s of it
+    asyncio.run(run_source(_Source(11, 0.1), Pipeline(sink=Collect()), realtime_factor=1.0,
+                           on_progress=lambda src, n: calls.append(n), progress_interval_s=0.25))
+    assert len(calls) >= 3 and calls == sorted(calls) and calls[-1] <= 11

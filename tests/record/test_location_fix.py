@@ -1,5 +1,6 @@
-"""The record's foxglove.LocationFix JSON schema is Foxglove's own, field for field: checked against the schema the
-maintained foxglove-sdk package ships (as a protobuf descriptor; Foxglove publishes its JSON schemas on npm only)."""
+"""The record's foxglove.LocationFix and foxglove.Log JSON schemas are Foxglove's own, field for field: checked against
+the schemas the maintained foxglove-sdk package ships (as protobuf descriptors; Foxglove publishes its JSON schemas on
+npm only)."""
 
 from __future__ import annotations
 
@@ -8,20 +9,21 @@ import warnings
 import pytest
 
 from companion.record import LOCATION_FIX_SCHEMA
+from companion.record.schemas import LOG_SCHEMA
 
-_JSON_TYPE = {1: "number", 2: "number", 9: "string", 8: "boolean", 3: "integer", 4: "integer", 5: "integer",
+_JSON_TYPE = {1: "number", 2: "number", 9: "string", 8: "boolean", 3: "integer", 4: "integer", 5: "integer", 6: "integer", 7: "integer",
               13: "integer", 11: "object"}  # protobuf FieldDescriptorProto.Type -> JSON type
 
 
-def _sdk_messages() -> dict:
+def _sdk_messages(name: str = "LocationFix") -> dict:
     from google.protobuf import descriptor_pb2  # the test extra's protobuf
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)  # foxglove.schemas -> foxglove.messages in later SDKs
         import foxglove.schemas as fs
 
-        schema = fs.LocationFix.get_schema()
-    assert schema.name == "foxglove.LocationFix" and schema.encoding == "protobuf"
+        schema = getattr(fs, name).get_schema()
+    assert schema.name == f"foxglove.{name}" and schema.encoding == "protobuf"
     fds = descriptor_pb2.FileDescriptorSet.FromString(schema.data)
     return {f"{f.package}.{m.name}": m for f in fds.file for m in f.message_type}
 
@@ -50,6 +52,12 @@ def test_location_fix_schema_is_foxglove_sdks():
     messages = _sdk_messages()
     _check(LOCATION_FIX_SCHEMA, messages["foxglove.LocationFix"], messages, "LocationFix")
     assert LOCATION_FIX_SCHEMA["title"] == "foxglove.LocationFix"
+
+
+def test_log_schema_is_foxglove_sdks():
+    messages = _sdk_messages("Log")
+    _check(LOG_SCHEMA, messages["foxglove.Log"], messages, "Log")
+    assert LOG_SCHEMA["title"] == "foxglove.Log"
 
 
 def test_the_check_can_fail():

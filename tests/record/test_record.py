@@ -330,6 +330,29 @@ def test_write_dict(tmp_path):
 # ---------------------------------------------------------------------------- LocationFix
 
 
+def test_location_fix_and_log_stamped_with_the_log_time_each_track_its_own_frame(tmp_path):
+    """LocationFix and Log ``timestamp`` are the message's log time (UTC once the clock knows it, like the MCAP log
+    time), not the boot time; every track's frame_id is its own."""
+    from companion.record.clock import RecordClock
+    from companion.record.schemas import LOG_SCHEMA, LOG_WARNING
+
+    path = tmp_path / "utc.mcap"
+    offset_ns = 1_742_002_200 * 10**9  # 2025-03-15T01:30:00Z at boot time 0
+    with Recorder(path, clock=RecordClock(offset_ns, "test")) as rec:
+        rec.write_location("/map/gnss", 100.25, 47.1, 8.5, 420.0)
+        rec.write_location("/map/autopilot", 100.25, 47.1, 8.5, 420.0)
+        rec.write_log("/log/autopilot", 101.5, LOG_WARNING, "PreArm: GPS 2: Bad fix", "autopilot")
+    got = [(t, ns, json.loads(d)) for t, ns, d in iter_payloads(path)]
+    for topic, ns, p in got:
+        validate_all(p, LOG_SCHEMA if topic.startswith("/log") else LOCATION_FIX_SCHEMA)
+        assert p["timestamp"]["sec"] * 10**9 + p["timestamp"]["nsec"] == ns  # the log time, in UTC
+    assert got[0][1] == offset_ns + 100_250_000_000
+    assert [p["frame_id"] for _, _, p in got[:2]] == ["gnss", "autopilot"]
+    assert got[2][2] == {"timestamp": {"sec": 1_742_002_301, "nsec": 500_000_000}, "level": LOG_WARNING,
+                         "message": "PreArm: GPS 2: Bad fix", "name": "autopilot", "file": "", "line": 0}
+    assert summarize(path).topic("/log/autopilot").schema_name == "foxglove.Log"
+
+
 def test_location_fix(tmp_path):
     path = tmp_path / "loc.mcap"
     with Recorder(path) as rec:

@@ -229,22 +229,29 @@ def test_live_path_gives_the_replay_payloads(tmp_path):
         capture_output=True, text=True, timeout=120,
     )
     assert rep.returncode == 0, rep.stderr
-    skip = ("/input/heartbeat", "/input/statustext", "/link/", "/inject/", "/map/gps_input")
-
-    def payloads(path):
-        d: dict[str, list] = {}
-        # compared on the vehicle clock in the payloads: log times are UTC, and a live run stamps what comes before
-        # the vehicle's first SYSTEM_TIME with the host's UTC clock (a replay looks ahead)
-        for topic, _log_ns, data in iter_payloads(path):
-            if not topic.startswith(skip):
-                p = json.loads(data)
-                t_ns = round(p["t_s"] * 1e9) if "t_s" in p else p["timestamp"]["sec"] * 10**9 + p["timestamp"]["nsec"]
-                d.setdefault(topic, []).append((t_ns, data))
-        return d
+    skip = ("/input/heartbeat", "/input/statustext", "/log/autopilot", "/link/", "/inject/", "/map/gps_input")
 
     clocks = [summarize(f).metadata_dict("clock") for f in (live_mcap, tmp_path / "replay.mcap")]
     assert all(c["log_time"] == "UTC, Unix epoch ns" for c in clocks), clocks
     assert clocks[0]["utc_offset_ns"] == clocks[1]["utc_offset_ns"]  # live and replay on the same UTC
+    offset_ns = int(clocks[0]["utc_offset_ns"])
+
+    def payloads(path):
+        d: dict[str, list] = {}
+        # compared on the vehicle clock in the payloads: log times are UTC, and a live run stamps what comes before
+        # the vehicle's first SYSTEM_TIME with the host's UTC clock (a replay looks ahead); a LocationFix carries its
+        # log time, so the vehicle time is that less the UTC offset (its payload compared without it)
+        for topic, _log_ns, data in iter_payloads(path):
+            if not topic.startswith(skip):
+                p = json.loads(data)
+                if "t_s" in p:
+                    t_ns = round(p["t_s"] * 1e9)
+                else:
+                    stamp = p.pop("timestamp")
+                    t_ns, data = stamp["sec"] * 10**9 + stamp["nsec"] - offset_ns, json.dumps(p).encode()
+                d.setdefault(topic, []).append((t_ns, data))
+        return d
+
     live, replay = payloads(live_mcap), payloads(tmp_path / "replay.mcap")
     last_ns = max(t for v in live.values() for t, _ in v)
     cut_ns = last_ns - 3_000_000_000  # the live run stops mid-flight: leave out the navigator's final flush

@@ -64,7 +64,8 @@ def test_targets_autopilot_and_requests_streams(playback):
     assert h.states()[:3] == ["opened", "autopilot", "streams"]
     assert h.link.target == (1, 1)
     req = {msg_id: interval for _, msg_id, interval in h.sim.stats.requests}
-    assert req == {message_id("GPS_RAW_INT"): 1e5, message_id("RAW_IMU"): 2e4, message_id("ATTITUDE"): 1e5, message_id("SYSTEM_TIME"): 1e6}
+    assert req == {message_id("GPS_RAW_INT"): 1e5, message_id("RAW_IMU"): 2e4, message_id("ATTITUDE"): 1e5, message_id("SYSTEM_TIME"): 1e6,
+                   message_id("GLOBAL_POSITION_INT"): 2e5}  # (the autopilot's own position: its Map track)
     assert h.sim.stats.received["HEARTBEAT"] >= 3  # ours, 1 Hz
     imu, gnss = h.events(ImuSample), h.events(GnssFix)
     assert len(imu) > 100 and len(gnss) > 10  # streams flow once requested (the sim sends none before)
@@ -201,7 +202,7 @@ def test_udp_link_learns_the_peer_and_requests_streams(playback):
     link = asyncio.run(main())
     sim.stop()
     th.join(5)
-    assert link.target == (1, 1) and len(sim.stats.requests) == 4
+    assert link.target == (1, 1) and len(sim.stats.requests) == 5
     imu = [e for i in items if isinstance(i, Batch) for e in i.events if isinstance(e, ImuSample)]
     assert len(imu) > 50
 
