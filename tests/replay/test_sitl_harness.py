@@ -203,7 +203,9 @@ def test_companion_error_against_the_time_it_claims():
     assert r.sent_fix == {2: 250, 3: 250}
     # 1.5 m of error, 3D fixes (what EKF3 fuses) before t = 50 s: within 2 x 1.0 m; the 2D fixes after do not count
     assert r.fixes_with_hacc == 250 and r.within_2hacc == pytest.approx(1.0)
-    assert r.last_hacc_m == pytest.approx(1.0)  # the last 3D fix sent before GPS1 came back (t 49.8 s)
+    assert math.isnan(r.last_hacc_m)  # the last fix before GPS1 came back (t 69.8 s) was 2D: no claim standing
+    recs3 = [dict(x, fix_type=3) for x in recs]
+    assert core.analyse(core.SCENARIOS["lap-deny-30"], "B", log, recs3).last_hacc_m == pytest.approx(0.5)
     table = report.companion_table([r])
     assert "3:250" in table and "1.5" in table and "100.0 % of 250" in table
     recs = [dict(x, h_acc_m=0.5) for x in recs]
