@@ -235,6 +235,28 @@ class MotionPrior:
             out_var.append(max(float(w @ S @ w), 1e-6) * self.config.variance_scale)
         return out, out_var
 
+    def output(self, t: float, ned, P: np.ndarray, ins_mode: bool, ins_error_learnt: bool):
+        """The navigator's output position at t (local NED) and its covariance ``P`` after the prior: the selection in
+        kinematic mode (``select``), else the product with the filter's claimed variance (:func:`blend`), bounded by
+        the learnt INS dead-reckoning error only when ``ins_error_learnt`` (that of an attitude-aided INS). Returns
+        (ned, P, applied); P is a new array when applied."""
+        if self.config.select and not ins_mode:
+            sel = self.select(t, ned)
+            if sel is None:
+                return ned, P, False
+            P = P.copy()
+            P[0, 0], P[1, 1], P[2, 2] = sel[1]
+            return tuple(sel[0]), P, True
+        prior = self.predict(t)
+        if prior is None:
+            return ned, P, False
+        if not (ins_mode and ins_error_learnt):
+            prior = (prior[0], prior[1], None)
+        ned, var = blend(ned, (P[0, 0], P[1, 1], P[2, 2]), prior, self.config.consistency_sigma)
+        P = P.copy()
+        P[0, 0], P[1, 1], P[2, 2] = var
+        return ned, P, True
+
 
 def _nonneg_blue(S: np.ndarray) -> np.ndarray:
     """Weights w >= 0, sum 1, minimising w' S w: the unconstrained optimum on every subset of the models, the best
