@@ -37,13 +37,9 @@ class KinematicFilter:
             self.kf = CvFilter(x0, P0, c.kinematic_accel_sigma_mps2)
         self.t_s = t
 
-    @property
-    def x(self) -> np.ndarray:
-        return self.kf.x
-
-    @property
-    def P(self) -> np.ndarray:
-        return self.kf.P
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """(x: position and velocity NED, flat; its covariance P)."""
+        return self.kf.x.ravel(), self.kf.P
 
     def predict(self, t: float) -> None:
         dt = t - self.t_s

@@ -336,7 +336,7 @@ class Navigator(Stage):
             filt = "kinematic"
             dp = dv = math.nan
             if self.kin is not None:
-                x = self.kin.x.ravel()
+                x = self.kin.state()[0]
                 dp = float(np.linalg.norm(np.asarray(z) - x[0:3]))
         self.kin = KinematicFilter(self.config, self.latency, self._emit, t, z, vel)
         if self.drag is not None:
@@ -467,12 +467,11 @@ class Navigator(Stage):
             if self.kin is None:
                 return
             self.kin.predict(tg)
-            x = self.kin.x.ravel()
+            x, P = self.kin.state()
             n, e, d = float(x[0]), float(x[1]), float(x[2])
             vel = (float(x[3]), float(x[4]), float(x[5]))
             a = self._att
             rpy = (a.roll_rad, a.pitch_rad, a.yaw_rad) if a is not None and tg - a.t_s < 1.0 else (math.nan,) * 3
-            P = self.kin.P
         if self.motion is not None:
             (n, e, d), P, applied = self.motion.output(tg, (n, e, d), P, self.mode == "ins", self.heading.consistent)
             if applied:

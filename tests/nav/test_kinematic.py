@@ -29,12 +29,12 @@ def _track(hold_cv: bool, n=30, seed=1):
 @pytest.mark.parametrize("hold_cv", [False, True])
 def test_velocity_converges_on_a_constant_velocity_track(hold_cv):
     kin, out = _track(hold_cv)
-    x = kin.x.ravel()
+    x = kin.state()[0]
     assert x[3:6] == pytest.approx(V, abs=0.1)
     assert x[0:3] == pytest.approx(V * 30, abs=0.2)
     assert len(out) == 30 and all(isinstance(o, MeasurementUpdate) and o.filter == "kinematic" for o in out)
     kin.predict(35.0)
-    x = kin.x.ravel()
+    x = kin.state()[0]
     if not hold_cv:  # extrapolated at the learnt velocity
         assert x[0:3] == pytest.approx(V * 35, abs=0.8)
     else:  # the mixture of hold (where it was) and constant velocity
@@ -43,18 +43,18 @@ def test_velocity_converges_on_a_constant_velocity_track(hold_cv):
 
 def test_gate_refuses_an_outlier_and_reset_takes_the_fix():
     kin, out = _track(False)
-    x0 = kin.x.ravel().copy()
+    x0 = kin.state()[0].copy()
     m = PositionMeasurement(31.0, "gnss_pos", (500.0, 0.0, 0.0), 0.5, 0.5, gate_chi2=16.27)
     ok, y, nis = kin.apply(m)
     assert not ok and nis > 16.27 and not out[-1].accepted
-    assert kin.x.ravel()[0] == pytest.approx(x0[0] + x0[3], abs=1e-9)  # predicted, not updated
+    assert kin.state()[0][0] == pytest.approx(x0[0] + x0[3], abs=1e-9)  # predicted, not updated
     kin.reset_to_fix(m, (1.0, 2.0, math.nan))
-    x = kin.x.ravel()
+    x = kin.state()[0]
     assert x[0:3] == pytest.approx([500.0, 0.0, 0.0]) and x[3:5] == pytest.approx([1.0, 2.0])
-    assert kin.P[0, 0] == pytest.approx(0.25)
+    assert kin.state()[1][0, 0] == pytest.approx(0.25)
 
 
 def test_trajectory_record_is_its_dead_reckoning():
     kin, _ = _track(False)
     p, v, p_free, v_free = kin.trajectory_record()
-    assert v == pytest.approx(list(kin.x.ravel()[3:6])) and p_free == (0.0, 0.0, 0.0) and v_free == (0.0, 0.0, 0.0)
+    assert v == pytest.approx(list(kin.state()[0][3:6])) and p_free == (0.0, 0.0, 0.0) and v_free == (0.0, 0.0, 0.0)
