@@ -68,8 +68,9 @@ class _SinceOutput:
         self.rejected = 0
 
     def take(self) -> tuple[str, tuple[float, ...], int]:
+        """(aids joined by "+" or "none", innovation, refusals) for a FusedState; starts the next interval."""
         out = ("+".join(sorted(self.used, key=_USED_ORDER.index)) or "none", self.innovation, self.rejected)
-        self.__init__()
+        self.used, self.innovation, self.rejected = set(), (math.nan, math.nan, math.nan), 0
         return out
 
 
@@ -79,8 +80,7 @@ class Navigator(Stage):
     def __init__(self, config: NavigatorConfig | None = None) -> None:
         self.config = c = config or NavigatorConfig()
         self._out: list[Event] = []
-        emit = self._out.append
-        self._emit = emit
+        self._emit = emit = self._out.append  # every part's outputs, in the order they happen
         self._reorder = ReorderBuffer(c.reorder_window_s, _PRIO, default_priority=3, outlier_s=c.future_outlier_s,
                                       confirm_n=c.future_confirm_n)
         self._modes = ModeSelector(c)
@@ -95,8 +95,8 @@ class Navigator(Stage):
         self._baro = BaroAid(c)
         self.drag = RotorDrag(c.drag) if c.rotor_drag else None
         self.motion = MotionPrior(c.motion) if c.motion_prior else None
-        self.ins: InsFilter | None = None  # the active filter: the INS in INS mode, else the kinematic one
-        self.kin: KinematicFilter | None = None
+        self.ins: InsFilter | None = None  # the filter of INS mode
+        self.kin: KinematicFilter | None = None  # ... and of the others (never run beside the INS)
         self._ins_epoch = 0
         self.yaw_alignments: list[tuple[float, float]] = []  # (t, applied INS heading rotation rad)
         self.frame: LocalFrame | None = None
