@@ -24,7 +24,7 @@ from companion.nav.ins import dcm_from_quat, quat_from_euler
 from companion.nav.navigator import NavigatorConfig, run_navigator
 from companion.nav.outputs import MeasurementUpdate
 from companion.sim.circle import simulate_circle_flight
-from replay.gap_filling import SHARED_LOGS, load_log
+from replay.harness.blockages import SHARED_LOGS, load_log
 
 INNOVATION_LAGS_S = (0.1, 0.5, 1.0, 3.0, 10.0)
 CHANGE_LAGS_S = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0)

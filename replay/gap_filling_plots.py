@@ -9,8 +9,8 @@ import numpy as np
 
 from companion.nav.navigator import NavigatorConfig, run_navigator
 from companion.nav.outputs import FusedState, PredictorPoint
-from replay.gap_filling import (METHOD_LABEL, METHODS, LogData, _drop_fixes, _in_windows, _series, choose_windows,
-                                decimate_mask, free_ins, stats)
+from replay.harness.blockages import (METHOD_LABEL, METHODS, LogData, choose_windows, decimate_mask, drop_fixes, free_ins,
+                                      in_windows, series, stats)
 from replay.harness.baselines import constant_velocity, hold_last_fix, withhold_aiding
 
 
@@ -31,8 +31,8 @@ def plot_example(path: Path, log: LogData, window: tuple[float, float], dec, cfg
     import matplotlib.pyplot as plt
 
     a, b = window
-    keep = decimate_mask(log.fix_t, dec) & ~_in_windows(log.fix_t, [window])
-    events = _drop_fixes(log.events, set(log.fix_t[~keep].tolist()))
+    keep = decimate_mask(log.fix_t, dec) & ~in_windows(log.fix_t, [window])
+    events = drop_fixes(log.events, set(log.fix_t[~keep].tolist()))
     full = run_navigator(events, cfg)
     alone = run_navigator(withhold_aiding(events, [window]), free_ins(cfg))
     tq = np.arange(a, b, 0.1)
@@ -44,13 +44,13 @@ def plot_example(path: Path, log: LogData, window: tuple[float, float], dec, cfg
             hold_last_fix(log.fix_t[avail], log.fix_ned[avail], tq)[:, 0], "s", ms=6, label="hold last fix")
     cv = constant_velocity(log.fix_t[avail], log.fix_ned[avail], log.fix_vel[avail], tq)
     ax.plot(cv[:, 1], cv[:, 0], "-", label="constant velocity")
-    pt, pn = _series(full, log.frame, PredictorPoint)
+    pt, pn = series(full, log.frame, PredictorPoint)
     sel = (pt >= a) & (pt < b)
     ax.plot(pn[sel, 1], pn[sel, 0], "-", label="KNN predictor")
-    at, an = _series(alone, log.frame, FusedState)
+    at, an = series(alone, log.frame, FusedState)
     sel = (at >= a) & (at < b)
     ax.plot(an[sel, 1], an[sel, 0], "-", label="INS alone")
-    ft, fn = _series(full, log.frame, FusedState)
+    ft, fn = series(full, log.frame, FusedState)
     # the fused track, drawn in two pieces: its correction at the first fix after the blockage is a jump of the
     # estimate, not a path the vehicle flew (dotted)
     later = log.fix_t[keep & (log.fix_t >= b)]

@@ -1,5 +1,6 @@
-"""The layout's rules, checked on the source: no import cycle in the package, no product module over 600 lines,
-no issue numbers in file names or docstrings, no MAVLink enum value re-declared (they come from the dialect)."""
+"""The layout's rules, checked on the source: no import cycle in the package or the benchmarks, no product module over
+600 lines, no issue numbers in file names or docstrings, no MAVLink enum value re-declared (they come from the
+dialect), and no docstring or comment that is a lab notebook (those are decision records)."""
 
 from __future__ import annotations
 
@@ -83,6 +84,14 @@ def test_companion_import_graph_has_no_cycle():
     assert _cycle(graph) is None, " -> ".join(_cycle(graph))
 
 
+def test_replay_import_graph_has_no_cycle():
+    """The benchmarks too (type-checking imports included: a cycle there is still two modules that need each other)."""
+    mods = _modules(REPO / "replay")
+    known = set(mods)
+    graph = {n: {m for m in _imports(p, n, known) if not n.startswith(m + ".")} for n, p in mods.items()}
+    assert _cycle(graph) is None, " -> ".join(_cycle(graph))
+
+
 def test_the_cycle_check_finds_a_cycle():
     assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
     assert _cycle({"a": {"b"}, "b": set()}) is None
@@ -150,3 +159,78 @@ def test_numerical_cores_import_no_io_machinery(core):
                 [node.module or ""] if isinstance(node, ast.ImportFrom) else []
             bad += [f"{p.relative_to(REPO)}: {n}" for n in names if n.split(".")[0] in banned]
     assert not bad, bad
+
+
+# the code says what it does and why; tuning tables, per-log results and rejected experiments are decision records
+# (docs/decisions/): a docstring or comment naming a shared log, a pooled or held-out score, or a before -> after
+# number is a lab-notebook entry, and so is a docstring longer than a page
+MAX_DOC_LINES = 50
+MAX_COMMENT_LINES = 15
+_NOTEBOOK = re.compile(r"\b(ac313|erle|log171|pooled|held[- ]out|tuning logs?|tuning seeds?)\b|"
+                       r"\d+\.\d+ -> \d+\.\d+", re.I)
+
+
+def _comment_blocks(src: str):
+    """(first line, text) of every run of consecutive comment lines."""
+    import io
+    import tokenize
+
+    lines: dict[int, str] = {}
+    for tok in tokenize.generate_tokens(io.StringIO(src).readline):
+        if tok.type == tokenize.COMMENT:
+            lines[tok.start[0]] = tok.string
+    block: list[int] = []
+    for n in sorted(lines) + [-1]:
+        if block and n != block[-1] + 1:
+            yield block[0], "\n".join(lines[k] for k in block)
+            block = []
+        if n > 0:
+            block.append(n)
+
+
+def _notebook_entries(root: Path) -> list[str]:
+    bad = []
+    for p in sorted(root.rglob("*.py")):
+        rel, src = p.relative_to(root.parent), p.read_text()
+        for node in ast.walk(ast.parse(src)):
+            if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+                doc = ast.get_docstring(node, clean=False)
+                if not doc:
+                    continue
+                name = getattr(node, "name", "module")
+                if doc.count("\n") + 1 > MAX_DOC_LINES:
+                    bad.append(f"{rel} {name}: docstring of {doc.count(chr(10)) + 1} lines")
+                m = _NOTEBOOK.search(doc)
+                if m:
+                    bad.append(f"{rel} {name}: {m.group(0)!r}")
+        for line, text in _comment_blocks(src):
+            if text.count("\n") + 1 > MAX_COMMENT_LINES:
+                bad.append(f"{rel}:{line}: comment of {text.count(chr(10)) + 1} lines")
+            m = _NOTEBOOK.search(text)
+            if m:
+                bad.append(f"{rel}:{line}: {m.group(0)!r}")
+    return bad
+
+
+def test_no_docstring_or_comment_is_a_lab_notebook():
+    bad = _notebook_entries(PACKAGE)
+    assert not bad, "move these to a decision record (docs/decisions/) and link it from the setting:\n" + "\n".join(bad)
+
+
+def test_the_notebook_check_finds_one(tmp_path):
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    (pkg / "m.py").write_text('"""Chosen on ac313."""\n\nx = 1  # pooled 8 s\ny = 2  # 3.23 -> 3.18 m\n\nz = 3\n'
+                              + "\n".join("# line" for _ in range(MAX_COMMENT_LINES + 1)) + "\n\n\n"
+                              + 'def f():\n    """' + "\n" * MAX_DOC_LINES + '"""\n')
+    bad = _notebook_entries(pkg)
+    assert bad == ["pkg/m.py module: 'ac313'", "pkg/m.py f: docstring of 51 lines", "pkg/m.py:3: 'pooled'",
+                   "pkg/m.py:7: comment of 16 lines"], bad
+
+
+def test_every_decision_record_named_in_the_code_exists():
+    named = set()
+    for p in PACKAGE.rglob("*.py"):
+        named |= set(re.findall(r"docs/decisions/(\d{4})", p.read_text()))
+    have = {p.name[:4] for p in (REPO / "docs" / "decisions").glob("*.md")}
+    assert named and named <= have, sorted(named - have)

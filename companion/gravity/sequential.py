@@ -86,16 +86,8 @@ class InsErrorSpec:
 @dataclass(frozen=True)
 class MapErrorSpec:
     """Map-minus-sensor misfit: a first-order Gauss-Markov process in distance plus a short-scale white part, fitted
-    to the structure function D(lag) = E[(r(x + lag) - r(x))^2] of the real ship-minus-satellite residuals (GMT
-    example 3, MANIFEST sec. 4; std 5.7 mGal): measured D = 0.83, 2.0, 3.6, 6.1, 9.6, 17, 27, 36, 43, 47, 51 mGal^2 at
-    0.33, 1, 2, 3.3, 5, 10, 16.5, 25, 33, 50, 80 km against 2 sigma^2 (1 - exp(-lag / L)) + 2 white^2 = 0.84, 2.2, 4.1,
-    6.4, 9.4, 17, 25, 33, 39, 47, 53 for sigma 5.3 mGal, L 28 km, white 0.3 mGal. Only increments matter once the
-    level is learnt (while GNSS pins the filter); the series' 30 km windows have means from -3.6 to +19.5 mGal, which
-    the level and its 5.3 mGal wander cover. Chosen on the marine benchmark's tuning seeds (replay.gravity.marine
-    TUNING_SEEDS, AK and Tasman together): aided / INS 0.46 with 94.7 % within 2 h_acc, against 0.49 / 94.6 % for the
-    8 mGal / 50 km / 0.6 mGal model it replaces (which overstated D by 1.3-2x at every lag). The series keeps
-    D ~ 47-60 mGal^2 out to 300 km, so the model's variance holds on long tracks too; what the model cannot know is
-    how well the map fits where the cloud sits, hence learn_window_m (the misfit's sigma learnt along the track)."""
+    to the structure function of real ship-minus-satellite residuals; its sigma can be learnt along the track
+    (docs/decisions/0008-gravity-map-misfit.md)."""
 
     sigma_mgal: float = 5.3
     corr_length_m: float = 28_000.0
@@ -104,9 +96,7 @@ class MapErrorSpec:
     white_sigma_mgal: float = 0.3
     white_corr_length_m: float = 330.0
     # > 0: the misfit's sigma is learnt along the track (MisfitVarianceLearner, sigma_mgal its floor) over this much
-    # distance (ten correlation lengths, not tuned), 0: sigma_mgal throughout. A ship's 3 h (86 km) never fills the
-    # window, so its runs are unchanged; on the aircraft tuning seeds (1600 km per run, where the cloud sat km off
-    # with h_acc ~100 m and consistent per-particle innovations) 70.9 -> 89.0 % within 2 h_acc, mean 886 -> 867 m
+    # distance (ten correlation lengths), 0: sigma_mgal throughout
     learn_window_m: float = 280_000.0
 
 
@@ -120,24 +110,14 @@ class SeqGravConfig:
     # position kernel after resampling (regularised particle filter, Musso, Oudjane & Le Gland 2001): bandwidth h as a
     # fraction of the population std; roughen_shrink first shrinks the positions towards their mean by sqrt(1 - h^2)
     # (Liu & West 2001) so the kernel keeps the covariance; None: their optimal Gaussian bandwidth
-    # (4 / (N (d + 2)))^(1 / (d + 4)), 0.32 for N = 1000, d = 2. Off by default: in this filter each particle's linear
-    # states (velocity, biases) are conditioned on its own position path (Schoen 2005 eq. 23a, the path as a
-    # pseudo-measurement of Anl xl), so a jitter of the positions alone leaves particles whose velocity no longer
-    # explains their path; diversity comes instead from the position process noise below, which eq. 23 accounts for.
+    # (4 / (N (d + 2)))^(1 / (d + 4)), 0.32 for N = 1000, d = 2. Off by default: each particle's velocity and biases
+    # are conditioned on its own position path (Schoen 2005 eq. 23a), which a jitter of the positions alone breaks;
+    # diversity comes from the position process noise below instead (docs/decisions/0009)
     roughen: float | None = 0.0
     roughen_shrink: bool = False
     roughen_multimodal: float = 0.1  # bandwidth cap while the cloud is multimodal (bimodality above multimodal_bc)
     # direct position random walk, m / sqrt(s): also the noise of eq. 23's pseudo-measurement, so it floors each
-    # particle's velocity variance (0.05 m / sqrt(s) left 0.02 m/s, and a cloud whose velocity spread lived only across
-    # particles: with the live ship flights' AHRS-held IMU at 8 m/s, whose north velocity error grows to 10-20 m/s
-    # unobserved, it locked 20-50 km off with a km-wide cloud). Chosen with roughen on the tuning seeds: `python -m
-    # replay.gravity.marine --first-seed 100 --seeds 6 --maps AK,Tasman --aircraft-seeds 6 --ahrs-seeds 6
-    # --pmf-seeds 0 --no-write --roughen R --pos-noise Q`; aided / INS and within 2 h_acc, AK | Tasman | AK, Tasman
-    # with the AHRS-held IMU | aircraft (mean):
-    #   R 0.1, Q 0.05 (the old defaults): 0.40, 99.1 % | 0.52, 90.3 % | 0.44, 34.0 %; 0.80, 30.9 % | 867 m, 89.0 %
-    #   R 0, Q 1:                         0.40, 99.0 % | 0.49, 93.4 % | 0.17, 79.7 %; 0.15, 99.6 % | 831 m, 93.9 %
-    #   R 0, Q 2:                         0.37, 99.1 % | 0.52, 94.7 % | 0.19, 80.7 %; 0.14, 99.8 % | 830 m, 95.8 %
-    #   R 0, Q 4:                         0.39, 99.1 % | 0.50, 95.3 % | 0.18, 78.7 %; 0.15, 99.2 %
+    # particle's velocity variance (docs/decisions/0009-gravity-particle-diversity.md)
     pos_noise_m_rts: float = 1.0
     # readings are not independent at 1 Hz: each white part is inflated by the number of readings that share one
     # sample of it, so n correlated readings count as one --

@@ -37,13 +37,10 @@ from companion.sim.gravimeter import GravitySimStage, SimulatedGravimeter
 
 
 def gravity_nav_config(**overrides) -> NavigatorConfig:
-    """Navigator settings for gravity-aided runs: GNSS weighted by the receiver's own accuracy, no KNN
-    predictor, and the autopilot's (barometric) altitude as the vertical aid once GNSS is gone (a free INS height
-    diverges exponentially: 775 km after 72 min in a 3 h live run without it).
-
-    Measured on the synthetic chain (tests/gravity/test_gravity_e2e.py flight, Viterbi n=9): with the default
-    'short_term' GNSS model (0.3 m) the filter leaves the cut overconfident, the matcher fixes then drag the INS
-    and the matcher follows the dragged track (fix error 12 -> 360 m in 85 s) instead of 13 m mean error."""
+    """Navigator settings for gravity-aided runs: GNSS weighted by the receiver's own accuracy (the navigator must
+    leave the GNSS period with an honest covariance, or the matcher's fixes drag it), no KNN predictor, and the
+    autopilot's (barometric) altitude as the vertical aid once GNSS is gone (a free INS height diverges
+    exponentially). Measured: docs/decisions/0010-gravity-fixes-into-the-navigator.md."""
     return NavigatorConfig(**{"gnss_sigma_model": "accuracy", "fuse_predictor": False, "fuse_autopilot_alt": True,
                               **_NOT_A_MULTICOPTER, **overrides})
 
@@ -82,8 +79,8 @@ class FixAcceptance:
 
     A fix is only as good as the map signal the window saw. A slow vehicle (a drone over a few hundred metres of a
     1-4 km altimetry grid) sees a flat field: every position in the search area fits, the matcher returns a confident
-    but arbitrary fix, and fusing it drags the navigator away (measured: 4.87 km error aided vs 1.16 km unaided on the
-    ac313 log, replay/results/gravity_summary.md). Two tests, both on the window the matcher used:
+    but arbitrary fix, and fusing it drags the navigator away (docs/decisions/0010-gravity-fixes-into-the-navigator.md).
+    Two tests, both on the window the matcher used:
 
     * track: the INS track over the window is at least ``min_track_cells`` map cells long (fewer cells: the window
       holds fewer independent map values than unknowns);

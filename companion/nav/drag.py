@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from companion.nav.measurements import DragMeasurement
 
 _PRIOR_INFO = np.eye(5) * 1e-4  # a weak prior on theta (sigma 100) keeps the fit defined before it is observable
 
@@ -152,3 +153,26 @@ class RotorDrag:
         if k < c.min_k_per_s or math.sqrt(max(cov[0, 0], 0.0)) > c.max_rel_sigma_k * k:
             return None
         return th, cov, s2
+
+    def measurement(self, t: float, C: np.ndarray, v_ned, fix_age_s: float | None) -> DragMeasurement | None:
+        """At an output tick (INS mode), with the INS attitude and velocity and the age of the last GNSS fix: learn
+        the model while GNSS aids and the vehicle moves; once no fix has come for ``min_fix_age_s``, the interval's
+        measurement for the INS filter."""
+        iv = self.tick(t, C, v_ned)
+        if iv is None or fix_age_s is None:
+            return None
+        c = self.config
+        if fix_age_s <= c.learn_max_fix_age_s:
+            if math.hypot(v_ned[0], v_ned[1]) >= c.learn_min_speed_mps:
+                self.learn(iv)
+            return None
+        model = self.model() if fix_age_s >= c.min_fix_age_s else None
+        if model is None:
+            return None
+        th, cov, s2 = model
+        k = float(th[0])
+        R = np.diag(s2) * c.sigma_scale**2 + iv.rows_end @ cov @ iv.rows_end.T
+        # the interval mean carried to its end with the model (the innovation is that of the interval means)
+        z = np.asarray(iv.f_xy) + (iv.rows_end - iv.rows) @ th
+        return DragMeasurement(t, "rotor_drag", (float(z[0]), float(z[1])), k, (float(th[1] / k), float(th[2] / k)),
+                               (float(th[3]), float(th[4])), (float(R[0, 0]), float(R[0, 1]), float(R[1, 1])))

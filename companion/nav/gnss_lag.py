@@ -208,3 +208,40 @@ class GnssLagEstimator:
     def residual_curve(self) -> tuple[np.ndarray, np.ndarray]:
         """(candidate lags, forgotten sum of squared residuals): for diagnostics and tests."""
         return self.taus_s.copy(), self._sse()
+
+
+class GnssLatency:
+    """The GNSS latency the navigator's filters model: the online estimate once it is observable (``estimator``, None
+    when not measured), else the configured delays of the position and, before it, of the velocity."""
+
+    def __init__(self, delay_s: float, vel_delay_s: float, estimator: GnssLagEstimator | None = None) -> None:
+        self.configured_s = delay_s
+        self.configured_vel_s = vel_delay_s
+        self.estimator = estimator
+
+    def delay_s(self) -> float:
+        """How long before its time stamp a fix describes the vehicle."""
+        est = self.estimator
+        lag = est.lag_s if est is not None else None
+        return self.configured_s if lag is None else lag
+
+    def vel_delay_s(self) -> float:
+        """The same for the fix's velocity: the measured lag (measured from the velocity), else the position's plus
+        the velocity's own."""
+        est = self.estimator
+        lag = est.lag_s if est is not None else None
+        return self.configured_s + self.configured_vel_s if lag is None else lag
+
+    def history_s(self) -> float | None:
+        """How far back the INS must keep its states to compare a fix with the epoch it describes (None: never)."""
+        est = self.estimator
+        if not (self.configured_s > 0 or self.configured_vel_s > 0 or est is not None):
+            return None
+        return max(self.configured_s + self.configured_vel_s, est.config.max_lag_s if est is not None else 0.0)
+
+    def describe(self) -> str:
+        """The latency in use, for the recording's metadata: the measured one with its sigma, or the configured."""
+        est = self.estimator
+        sig = est.sigma_s() if est is not None else None
+        return f"{self.delay_s():.3f}" + (
+            f" (measured, sigma {sig:.3f})" if est is not None and est.lag_s is not None else " (configured)")

@@ -2,22 +2,15 @@
 
 A hovering multicopter's IMU vibrates (per-sample std ~1 m/s^2 on the shared logs) but its *low-passed* specific
 force and rate barely change, and GNSS says it is not going anywhere. The detector keeps, per IMU sample, a
-low-passed specific force and rate (time constant ``lp_tau_s``) and the exponentially forgotten variance of the
-low-passed specific force and rate (``var_tau_s``; a steady yaw rotation or a gyro bias is still a hover); hover = the last GNSS horizontal
-speed below ``max_speed_mps`` and both IMU statistics below their thresholds. During a blockage the GNSS speed is
-the last one seen, and a multicopter leaving a hover barely shows in those statistics (it tilts gently and its
-accelerometers keep reading the thrust along the body's down axis). So the horizontal specific force resolved with
-the autopilot's attitude (``add_horizontal_dv``) is integrated from the last GNSS speed: once it adds up to
-``max_dv_mps`` the vehicle has moved, and there is no hover until a new speed says slow (else a vehicle cruising away
-from a stop is a hover, and the zero-velocity aid pins its velocity to zero). Pure: O(1) per sample.
-
-The rate bound does not find every hover: the Erle PXF log's airframe rocks at 0.13-0.28 rad/s (low-passed rate std)
-in its hover at 73-81 s, as much as when it flies (median 0.19 below 0.7 m/s, 0.19-0.23 above), and there hold beats
-the filter (8 s blockage 0.79 against 3.64 m; replay/results/gap_filling.md). Raising the bound does not reach it
-and moves what it does reach (replay.gap_filling --offsets 4 --no-stream-gaps --set hover.max_rate_std_radps=X, X =
-0.12 / 0.15 against 0.08: Erle PXF unchanged; ac313 8 s 3.40 -> 3.54 / 3.54 m but 30 s 28.93 -> 16.92 / 16.93 m;
-held-out log171 unchanged; pooled 8 s 3.18 -> 3.27 / 3.27, 30 s 26.60 -> 17.03 / 17.05 m): the 8 s target is the
-one missed, so 0.08 stays."""
+low-passed specific force and rate (time constant ``lp_tau_s``) and their exponentially forgotten variance
+(``var_tau_s``; a steady yaw rotation or a gyro bias is still a hover); hover = the last GNSS horizontal speed below
+``max_speed_mps`` and both IMU statistics below their thresholds. During a blockage the GNSS speed is the last one
+seen, and a multicopter leaving a hover barely shows in those statistics (it tilts gently and its accelerometers
+keep reading the thrust along the body's down axis). So the horizontal specific force resolved with the autopilot's
+attitude (``add_horizontal_dv``) is integrated from the last GNSS speed: once it adds up to ``max_dv_mps`` the
+vehicle has moved, and there is no hover until a new speed says slow (else a vehicle cruising away from a stop is a
+hover, and the zero-velocity aid pins its velocity to zero). Pure: O(1) per sample.
+"""
 
 from __future__ import annotations
 
@@ -30,7 +23,7 @@ class HoverConfig:
     lp_tau_s: float = 0.5
     var_tau_s: float = 3.0
     max_accel_std_mps2: float = 0.35  # of the low-passed specific force, summed over the axes
-    max_rate_std_radps: float = 0.08  # of the low-passed body rate, summed over the axes
+    max_rate_std_radps: float = 0.08  # of the low-passed body rate, summed over the axes (docs/decisions/0006)
     max_speed_mps: float = 0.7  # last GNSS horizontal speed
     max_speed_age_s: float = 30.0  # an older GNSS speed says nothing
     max_dv_mps: float = 1.0  # horizontal velocity change since the last GNSS speed (autopilot-resolved specific force)

@@ -1,77 +1,77 @@
 """The navigator's kinematic fallback: a 6-state constant-velocity Kalman filter (white-noise acceleration) on the
 same measurements as the INS filter, mixed with a hold model (companion.nav.hold_cv, ``kinematic_hold_cv``). Used
 when the source has no IMU, or its IMU is too slow to integrate, or no attitude initialises the INS, and after an IMU
-that stopped in flight (then started from the next fix; it does not run beside the INS). A mixin of
-companion.nav.navigator.Navigator (its state lives on the navigator)."""
+that stopped in flight (then started from the next fix; it does not run beside the INS)."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
-from companion.nav.hold_cv import CvFilter, HoldCvFilter
 
+from companion.events import Event
+from companion.nav.config import NavigatorConfig
+from companion.nav.gnss_lag import GnssLatency
+from companion.nav.hold_cv import CvFilter, HoldCvFilter
 from companion.nav.measurements import Measurement, PositionMeasurement, gate
 from companion.nav.outputs import MeasurementUpdate
 
 
 class KinematicFilter:
-    """Mixin: the constant-velocity filter of the Navigator (``_kin``, ``_kin_t``)."""
+    """Started at ``t`` from a position ``z`` (local NED) and a velocity (or None: at rest; a NaN vertical: 0).
+    ``emit`` receives a MeasurementUpdate for every measurement offered."""
 
-    def _kin_init(self, t: float, z, vel) -> None:
+    def __init__(self, config: NavigatorConfig, latency: GnssLatency, emit: Callable[[Event], None], t: float, z,
+                 vel) -> None:
+        self.config, self.latency, self._emit = config, latency, emit
         v = [0.0, 0.0, 0.0]
         if vel is not None:
             v = [vel[0], vel[1], vel[2] if math.isfinite(vel[2]) else 0.0]
         x0 = np.array([[z[0]], [z[1]], [z[2]], [v[0]], [v[1]], [v[2]]])
         P0 = np.diag([9.0, 9.0, 25.0, 4.0, 4.0, 4.0])
-        c = self.config
+        c = config
         if c.kinematic_hold_cv:  # hold / constant velocity mixed (companion.nav.hold_cv)
-            self._kin = HoldCvFilter(x0, P0, c.kinematic_accel_sigma_mps2, c.hold_cv)
+            self.kf: CvFilter | HoldCvFilter = HoldCvFilter(x0, P0, c.kinematic_accel_sigma_mps2, c.hold_cv)
         else:
-            self._kin = CvFilter(x0, P0, c.kinematic_accel_sigma_mps2)
-        self._kin_t = t
+            self.kf = CvFilter(x0, P0, c.kinematic_accel_sigma_mps2)
+        self.t_s = t
 
-    def _kin_predict(self, t: float) -> None:
-        dt = t - self._kin_t
+    def state(self) -> tuple[np.ndarray, np.ndarray]:
+        """(x: position and velocity NED, flat; its covariance P)."""
+        return self.kf.x.ravel(), self.kf.P
+
+    def predict(self, t: float) -> None:
+        dt = t - self.t_s
         if dt <= 0:
             return
-        self._kin.predict(dt)
-        self._kin_t = t
+        self.kf.predict(dt)
+        self.t_s = t
 
-    def _kin_apply(self, m: Measurement, record: bool) -> tuple[bool, np.ndarray, float]:
-        """The one update of the constant-velocity KF (companion.nav.kalman): predict to the measurement, gate,
-        record a MeasurementUpdate (if ``record``: the filter drives the output), update."""
-        self._kin_predict(max(m.t_s, self._kin_t))
-        kf = self._kin
+    def apply(self, m: Measurement) -> tuple[bool, np.ndarray, float]:
+        """The one update of the constant-velocity KF (companion.nav.kalman): predict to the measurement, gate, emit a
+        MeasurementUpdate, update. Returns (accepted, innovation, NIS)."""
+        self.predict(max(m.t_s, self.t_s))
+        kf = self.kf
         x = kf.x.ravel()
-        y, H, R = m.compute_kin(x, self._gnss_delay_s())
+        y, H, R = m.compute_kin(x, self.latency.delay_s())
         Rg = m.R_gate()
         nis, ok = gate(y, H @ kf.P @ H.T + (R if Rg is None else np.maximum(R, Rg)), m.gate_chi2)
-        if record:
-            self._out.append(MeasurementUpdate(m.t_s, m.kind, "kinematic", tuple(float(v) for v in y),
-                                               tuple(float(v) for v in np.sqrt(np.diag(R))), nis, m.gate_chi2, ok))
+        self._emit(MeasurementUpdate(m.t_s, m.kind, "kinematic", tuple(float(v) for v in y),
+                                     tuple(float(v) for v in np.sqrt(np.diag(R))), nis, m.gate_chi2, ok))
         if ok:
             # a measurement of the vehicle is evidence for a motion model; a pseudo-measurement is not
             kf.update((y + H @ x).reshape(-1, 1), R=R, H=H, evidence=m.kind in ("gnss_pos", "position_fix"))
         return ok, y, nis
 
-    def _kin_update(self, m: PositionMeasurement, record: bool) -> bool:
-        """A position measurement; a GNSS fix persistently rejected resets the position to it."""
-        kf = self._kin
-        ok, y, nis = self._kin_apply(m, record)
-        if m.kind == "gnss_pos" and record:
-            ok = self._gate_bookkeeping(m.t_s, ok, y, m.sigma_h_m, m.sigma_v_m)
-            if ok and nis > m.gate_chi2:  # reset after persistent rejection: position, and velocity when the fix has it
-                kf.reset_position(m.z(), m.R())
-                if self._fix_vel is not None:
-                    c = self.config
-                    kf.reset_velocity(self._fix_vel, c.gnss_vel_sigma_mps**2 * c.reset_cov_scale)
-                self._last_innov = tuple(float(v) for v in y)
-                return True
-        if not ok:
-            if record:
-                self._n_rejected += 1
-            return False
-        if record:
-            self._last_innov = tuple(float(v) for v in y)
-        return True
+    def reset_to_fix(self, m: PositionMeasurement, fix_vel) -> None:
+        """Position to the fix with its covariance, and velocity to the fix's when it has one."""
+        self.kf.reset_position(m.z(), m.R())
+        if fix_vel is not None:
+            c = self.config
+            self.kf.reset_velocity(fix_vel, c.gnss_vel_sigma_mps**2 * c.reset_cov_scale)
+
+    def trajectory_record(self) -> tuple:
+        """(position, velocity, 0, 0): the filter's dead reckoning from now is x + v dt (for the motion prior)."""
+        x = self.kf.x.ravel().tolist()
+        return (x[0:3], x[3:6], (0.0,) * 3, (0.0,) * 3)

@@ -13,7 +13,7 @@ on the ground before take-off would otherwise teach that the vehicle never moves
 At an age ``tau`` of the last fix, the best linear unbiased mix of the two models (hold weight
 ``w = (S22 - S12) / (S11 + S22 - 2 S12)`` clipped to [0, 1]; the last fix's own variance is common to both) is the
 motion prior, its variance that of the mix times ``variance_scale`` (the forgotten statistics of a short, changing
-flight underestimate the next blockage's; 2 was chosen on the training logs, see replay/results/gap_filling.md).
+flight underestimate the next blockage's).
 At a lag with fewer than ``min_pairs`` (forgotten) pairs, the statistics of the longest lag that has them are
 extrapolated ballistically (x (tau / lag)^2: an upper bound for a vehicle whose velocity persists).
 
@@ -24,38 +24,15 @@ Where the two disagree by more than ``consistency_sigma`` combined sigmas, the v
 (the INS sees it accelerate away) and the prior's variance is widened until they agree at that level. Output only:
 the filter's state is not changed, so aiding resumes from the INS. Pure: no I/O, no clocks; O(max_lag_s) per fix.
 
-``select`` (kinematic mode only; companion.nav.aids): an online, per-flight model selection instead of the product.
-The filter's own dead reckoning from each fix (its position plus velocity x lag: ``ins`` of :meth:`MotionPrior.add_fix`)
-is scored against the later fixes like hold and CV, and :meth:`MotionPrior.select` mixes hold, CV and the filter's
-estimate with the non-negative weights that minimise the variance of the mix under the learnt 3 x 3 error moments at
-this age. It needs the filter's dead reckoning to stand for its blockage output: true of the kinematic filter (its
-output in a blockage is that extrapolation, plus the predictor's points), not of the INS filter, whose blockage
-output owes much to its aids (autopilot attitude, rotor drag, the predictor) that the free-INS record leaves out:
-with the selection in INS mode too, the 8 s blockage on the three 50 Hz logs went 3.23 -> 4.05 m (held-out log171
-2.71 -> 3.50 m) in replay.gap_filling --offsets 4, so there the product with the claimed variance stays.
-In INS mode the product costs at short ages and pays from 8 s on: without it (replay.gap_filling --offsets 4
---set motion_prior=false) the pooled 4 s blockage goes 1.68 -> 1.42 m (Erle PXF 3.26 -> 2.50, ac313 1.54 -> 1.36,
-log171 0.87 -> 0.85) but 8 s 3.23 -> 3.55, 15 s 6.83 -> 8.82, 30 s 26.60 -> 37.26 m (Erle PXF 8 s 2.90 -> 6.42). In
-the 4 s blockages of ac313 and Erle PXF the prior's error exceeds its variance (hold and CV there do worse than on the
-fix pairs it learnt from). A prequential check of the prior (its variance inflated per lag by the mean NIS of its
-predictions of each new fix, made before that fix was learnt) found it consistent on those pairs and did not help
-(pooled 4 s 1.68 -> 1.66 m, 8 s 3.23 -> 3.30 m, Erle PXF 8 s 2.90 -> 3.88 m); not kept.
-So in INS mode the product starts at ``blend_min_age_s`` (6 s), after the aided INS's own short-age accuracy: chosen
-on ac313 and Erle PXF with log171 held out, from 1.5 / 3 / 4.5 / 6 / 8 / 10 s (replay.gap_filling --offsets 4
---set motion.blend_min_age_s=X): the two tuning logs' 4 s blockage 1.89 / 1.85 / 1.63 /
-1.58 / 1.58 / 1.58 m, 8 s 3.42 / 3.41 / 3.38 / 3.35 / 3.48 / 3.85 m, 15 s 7.15 / 7.15 / 7.14 / 7.13 / 7.15 / 7.28 m;
-held-out log171 at 6 s against 1.5 s: 4 s 0.87 -> 0.85, 8 s 2.71 -> 2.70, 15 s 6.09 -> 6.08, 30 s 19.53 -> 19.53 m.
-Pooled 4 s 1.68 -> 1.42 m (as without the prior), 8 s 3.23 -> 3.18 m; Erle PXF 4 s 1.34 -> 1.03 x the best baseline,
-8 s 1.29 -> 1.30 x. The kinematic mode's selection keeps ``min_age_s``: one
-age of 6 s for both took the tlog's 1 / 4 s ratios 1.04 / 1.23 -> 1.32 / 1.51.
-
-On by default. On the kinematic-mode tlog (GNSS at 1 Hz, --offsets 4) the ratio full filter / best baseline went
-1.14 / 1.31 / 1.17 / 1.01 / 1.00 -> 1.04 / 1.23 / 1.14 / 1.03 / 1.00 at 1 / 4 / 8 / 15 / 30 s; the 4 and 8 s rows are
-dominated by one blockage in which the vehicle leaves a waypoint hover (hold 3.2 m, the filter 4.1 m at 4 s). On
-simulated kinematic flights (1 Hz fixes, 4 and 8 s blockages, not the shared logs): a hover 0.80 -> 0.77 m (hold
-0.82), a 2 m/s track turning every 20 s 0.98 -> 0.92 m, a straight 2 m/s track 0.55 -> 0.56 m. No constant is new:
-``variance_scale`` and ``min_pairs`` are the prior's. (At the time, outputs differed only where a fix was >= 1.5 s
-old and only in kinematic mode: the three 50 Hz logs' replays were byte-identical.)
+``select`` (kinematic mode only): an online, per-flight model selection instead of the product. The filter's own
+dead reckoning from each fix (its position plus velocity x lag: ``ins`` of :meth:`MotionPrior.add_fix`) is scored
+against the later fixes like hold and CV, and :meth:`MotionPrior.select` mixes hold, CV and the filter's estimate
+with the non-negative weights that minimise the variance of the mix under the learnt 3 x 3 error moments at this
+age. It needs the filter's dead reckoning to stand for its blockage output: true of the kinematic filter (its output
+in a blockage is that extrapolation, plus the predictor's points), not of the INS filter, whose blockage output owes
+much to its aids (autopilot attitude, rotor drag, the predictor), which the free-INS record leaves out. So in INS
+mode the product with the filter's claimed variance is used, from ``blend_min_age_s`` on (after the aided INS's own
+short-age accuracy). Why these forms and ages: docs/decisions/0007-motion-prior.md.
 """
 
 from __future__ import annotations
@@ -75,13 +52,12 @@ class MotionPriorConfig:
     tau_s: float = 120.0  # forgetting time constant of the error statistics
     min_pairs: float = 10.0  # forgotten number of fix pairs a lag needs before its statistics are used
     min_age_s: float = 1.5  # the prior is applied from this age of the last fix on (select, kinematic mode)
-    # ... and the product with the INS filter (predict + blend, INS mode) from this one: see the module doc
-    blend_min_age_s: float = 6.0
-    variance_scale: float = 2.0
+    blend_min_age_s: float = 6.0  # ... and the product with the INS filter (INS mode) from this one
+    variance_scale: float = 2.0  # the prior's variance x this (docs/decisions/0007)
     consistency_sigma: float = 2.0
     # per-horizon selection (kinematic mode only): mix hold, CV and the filter's own output by the errors each would
     # have made from this flight's past fixes at this age (MotionPrior.select) instead of the product with the
-    # filter's claimed variance (blend); measured in the module doc
+    # filter's claimed variance (blend)
     select: bool = True
 
     def __post_init__(self) -> None:
@@ -258,6 +234,28 @@ class MotionPrior:
             out.append(w[0] * p[a] + w[1] * (p[a] + v[a] * age) + w[2] * ned[a])
             out_var.append(max(float(w @ S @ w), 1e-6) * self.config.variance_scale)
         return out, out_var
+
+    def output(self, t: float, ned, P: np.ndarray, ins_mode: bool, ins_error_learnt: bool):
+        """The navigator's output position at t (local NED) and its covariance ``P`` after the prior: the selection in
+        kinematic mode (``select``), else the product with the filter's claimed variance (:func:`blend`), bounded by
+        the learnt INS dead-reckoning error only when ``ins_error_learnt`` (that of an attitude-aided INS). Returns
+        (ned, P, applied); P is a new array when applied."""
+        if self.config.select and not ins_mode:
+            sel = self.select(t, ned)
+            if sel is None:
+                return ned, P, False
+            P = P.copy()
+            P[0, 0], P[1, 1], P[2, 2] = sel[1]
+            return tuple(sel[0]), P, True
+        prior = self.predict(t)
+        if prior is None:
+            return ned, P, False
+        if not (ins_mode and ins_error_learnt):
+            prior = (prior[0], prior[1], None)
+        ned, var = blend(ned, (P[0, 0], P[1, 1], P[2, 2]), prior, self.config.consistency_sigma)
+        P = P.copy()
+        P[0, 0], P[1, 1], P[2, 2] = var
+        return ned, P, True
 
 
 def _nonneg_blue(S: np.ndarray) -> np.ndarray:

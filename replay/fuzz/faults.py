@@ -1,4 +1,4 @@
-"""The live-link fuzzer's faults: what the hostile autopilot (:class:`replay.fuzz.link.Peer`) does on its play clock.
+"""The live-link fuzzer's faults: what the hostile autopilot (replay.fuzz.link.Peer) does on its play clock.
 
 Each :class:`Fault` starts ``at_s`` after the first fresh GPS_INPUT and lasts ``duration_s``: garbage bytes, frames
 with a bad CRC, MAVLink 1 frames among MAVLink 2, edited fields (extreme, NaN, a time far ahead or behind), a burst
@@ -10,12 +10,28 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
+
+import numpy as np
 
 from replay.fuzz.frames import FastFrames
 
-if TYPE_CHECKING:
-    from replay.fuzz.link import Peer
+
+class FaultPeer(Protocol):
+    """What a fault may do with the autopilot peer that plays it (replay.fuzz.link.Peer)."""
+
+    rng: np.random.Generator
+
+    def write(self, data: bytes) -> None: ...
+
+    def pack(self, msg, src=(1, 1), force_mavlink1: bool = False) -> bytes: ...
+
+    def packer(self, src=(1, 1)) -> Any: ...
+
+    def newest(self, mtype: str) -> Any: ...
+
+    def sigterm(self) -> None: ...
+
 
 @dataclass
 class Fault:
@@ -31,13 +47,13 @@ class Fault:
     def name(self) -> str:
         return type(self).__name__
 
-    def begin(self, peer: Peer, now: float) -> None:  # once, when at_s is reached
+    def begin(self, peer: FaultPeer, now: float) -> None:  # once, when at_s is reached
         pass
 
-    def step(self, peer: Peer, now: float) -> None:  # every loop iteration while active
+    def step(self, peer: FaultPeer, now: float) -> None:  # every loop iteration while active
         pass
 
-    def transform(self, peer: Peer, frame: bytes, msg) -> bytes:  # a stream frame while active
+    def transform(self, peer: FaultPeer, frame: bytes, msg) -> bytes:  # a stream frame while active
         return frame
 
 

@@ -121,5 +121,5 @@ def test_streaming_equals_batch_with_the_monitor_on():
     for ev in sorted(events, key=lambda e: e.t_s + delay.get(type(e), 0.05)):
         stream.extend(nav.process(ev))
     stream.extend(nav.finish())
-    assert nav._att_nis.inflation() > 1.0  # the monitor acted
+    assert nav.heading.tilt_nis.inflation() > 1.0  # the monitor acted
     assert [o.to_dict() for o in stream] == [o.to_dict() for o in batch]

@@ -101,3 +101,29 @@ def test_drag_holds_the_ins_through_a_30_s_blockage():
             assert any("rotor_drag" in o.measurement.split("+") for o in fs)
     assert errs[False] > 15.0, errs  # the tilt error drives the free INS away ...
     assert errs[True] < 0.2 * errs[False], errs  # ... the drag measurement holds its velocity
+
+
+def test_measurement_learns_while_gnss_aids_and_is_given_once_it_is_gone():
+    """At 1 s intervals of the output ticks: learnt while a fix is recent and the vehicle moves, a DragMeasurement
+    carrying the fit's coefficient, wind and bias once no fix has come for min_fix_age_s."""
+    rng = np.random.default_rng(4)
+    drag = RotorDrag()
+    t, learnt = 0.0, 0
+    for k in range(400):
+        C = dcm_from_quat(quat_from_euler(0.0, 0.0, rng.uniform(-math.pi, math.pi)))
+        v = np.array([*rng.normal(0, 4.0, 2), 0.0])
+        f = -K * (C.T @ (v - np.array([*WIND, 0.0])))[:2] + np.array(BIAS)
+        for j in range(10):  # ten IMU samples and ticks per interval, the same state throughout
+            drag.add_accel((float(f[0]), float(f[1]), -9.8))
+            t = round(t + 0.1, 9)
+            assert drag.measurement(t, C, tuple(v), 0.5) is None  # a fresh fix: learning, no measurement
+        learnt += drag.model() is not None
+    th = drag.model()[0]
+    assert learnt > 300 and th[0] == pytest.approx(K, rel=0.01)
+    assert drag.measurement(t + 0.1, C, tuple(v), None) is None  # no fix ever: nothing
+    m = None
+    for j in range(12):
+        drag.add_accel((float(f[0]), float(f[1]), -9.8))
+        m = m or drag.measurement(round(t + 0.2 + 0.1 * j, 9), C, tuple(v), 2.0 + 0.1 * j)
+    assert m is not None and m.kind == "rotor_drag"
+    assert m.k_per_s == pytest.approx(K, rel=0.01) and m.wind_ne_mps == pytest.approx(WIND, abs=0.05)

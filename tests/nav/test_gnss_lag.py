@@ -114,7 +114,7 @@ INS_ONLY = dataclasses.replace(NavigatorConfig(), fuse_predictor=False, motion_p
 def test_measured_lag_keeps_dead_reckoning_within_targets():
     """The issue's targets for the companion's own INS on SITL's clean IMU: <= 1 m at +10 s, <= 5 m at +30 s."""
     at, nav = _own_error_after_denial(dataclasses.replace(INS_ONLY, gnss_delay_estimate=True))
-    assert nav._gnss_lag.lag_s == pytest.approx(0.1, abs=0.005)
+    assert nav.latency.estimator.lag_s == pytest.approx(0.1, abs=0.005)
     assert nav.metadata()["gnss_lag_s"].startswith("0.10") and "measured" in nav.metadata()["gnss_lag_s"]
     assert at[10.0] <= 1.0 and at[29.9] <= 5.0, at
 
@@ -151,8 +151,8 @@ def test_bundled_sample_flight_has_no_lag_to_find():
         tn = CANBERRA_FIELD.to_ned_m(tr.lat_deg, tr.lon_deg, 0.0)
         errs[on] = float(np.mean(np.hypot(*(ned[:, :2] - tn[:, :2]).T)))
         if on:
-            assert nav._gnss_lag.observable and nav._gnss_lag.sigma_s() > nav._gnss_lag.config.max_sigma_s
-            assert nav._gnss_lag.lag_s is None
+            assert nav.latency.estimator.observable and nav.latency.estimator.sigma_s() > nav.latency.estimator.config.max_sigma_s
+            assert nav.latency.estimator.lag_s is None
     assert errs[True] <= errs[False] * 1.1 + 0.05, errs
 
 
@@ -177,3 +177,19 @@ def test_autopilot_heading_stops_the_drifting_gyro_from_turning_the_dead_reckoni
     without, _ = _own_error_after_denial(dataclasses.replace(cfg, fuse_attitude_yaw=False), sim)
     assert with_yaw[10.0] <= 1.0 and with_yaw[29.9] <= 5.0, with_yaw
     assert without[29.9] > 2 * with_yaw[29.9], (without, with_yaw)
+
+
+def test_latency_is_the_configured_one_until_measured():
+    from types import SimpleNamespace
+
+    from companion.nav.gnss_lag import GnssLagConfig, GnssLatency
+
+    assert GnssLatency(0.0, 0.0).history_s() is None  # nothing to look back for
+    fixed = GnssLatency(0.2, 0.15)
+    assert (fixed.delay_s(), fixed.vel_delay_s(), fixed.history_s()) == pytest.approx((0.2, 0.35, 0.35))
+    est = SimpleNamespace(lag_s=None, config=GnssLagConfig(), sigma_s=lambda: 0.004)
+    lat = GnssLatency(0.0, 0.15, est)
+    assert (lat.delay_s(), lat.vel_delay_s(), lat.describe()) == (0.0, 0.15, "0.000 (configured)")
+    assert lat.history_s() == GnssLagConfig().max_lag_s  # the longest lag it may measure
+    est.lag_s = 0.12  # measured from the velocity: the one latency of both
+    assert (lat.delay_s(), lat.vel_delay_s(), lat.describe()) == (0.12, 0.12, "0.120 (measured, sigma 0.004)")

@@ -189,3 +189,32 @@ def test_select_kinematic_streaming_equals_batch():
     assert used and all("motion_prior" in u for u in used)
     off = run_navigator(ev, NavigatorConfig(motion=MotionPriorConfig(select=False)))
     assert [o.to_dict() for o in off] != [o.to_dict() for o in batch]
+
+
+def test_output_selects_in_kinematic_mode_and_blends_in_ins_mode():
+    """MotionPrior.output, the navigator's one call: the selection for the kinematic filter, the product for the INS
+    (bounded by the learnt INS error only for an attitude-aided INS), and nothing before its age or anything learnt."""
+    t, p, v = _loiter(np.random.default_rng(5), n_s=400)
+    mp = MotionPrior()
+    P = np.diag([4.0, 4.0, 9.0, 1.0, 1.0, 1.0])
+    ned = (1.0, 2.0, 3.0)
+    assert mp.output(10.0, ned, P, True, True) == (ned, P, False)  # nothing learnt
+    for k in range(len(t)):  # the filter's dead reckoning from each fix: the fix plus its velocity
+        rec = (p[k], v[k], p[k], v[k])
+        mp.add_fix(t[k], p[k], v[k], (0.01, 0.01, 0.01), ins=rec, ins_epoch=1)
+    last = t[-1]
+    assert mp.output(last + 3.0, ned, P, True, True)[2] is False  # INS mode: from blend_min_age_s (6 s) only
+    t8 = last + 8.0
+    mean, var, ins_var = mp.predict(t8)
+    assert ins_var is not None
+    outs = []
+    for learnt, prior in ((True, (mean, var, ins_var)), (False, (mean, var, None))):
+        out, Q, applied = mp.output(t8, ned, P, True, learnt)
+        want, wvar = blend(ned, (4.0, 4.0, 9.0), prior, mp.config.consistency_sigma)
+        assert applied and out == pytest.approx(want) and Q.diagonal()[:3] == pytest.approx(wvar)
+        assert Q[3, 3] == 1.0 and P[0, 0] == 4.0  # a new covariance, the filter's untouched
+        outs.append(out)
+    assert outs[0] != pytest.approx(outs[1])  # the learnt INS error bounds the filter's variance
+    sel = mp.select(last + 3.0, ned)
+    out, Q, applied = mp.output(last + 3.0, ned, P, False, False)  # kinematic: the per-age selection
+    assert applied and out == pytest.approx(tuple(sel[0])) and Q.diagonal()[:3] == pytest.approx(sel[1])

@@ -241,8 +241,8 @@ def test_autopilot_heading_offset_is_detected_and_ins_heading_realigned(offset_d
     for e in events:
         out += nav.process(e)
     out += nav.finish()
-    assert abs(np.degrees(nav.ahrs_heading_offset_rad) + offset_deg) < 10.0
-    assert nav.ahrs_consistent == (offset_deg == 0.0)
+    assert abs(np.degrees(nav.heading.offset_rad) + offset_deg) < 10.0
+    assert nav.heading.consistent == (offset_deg == 0.0)
     assert bool(nav.yaw_alignments) == (offset_deg != 0.0)
     fused = [o for o in _fused(out, "ins") if o.t_s > sim.truth_t_s[0] + 20.0]
     true_yaw = circle_trajectory(np.array([o.t_s - sim.truth_t_s[0] for o in fused]))[3][:, 2]

@@ -45,7 +45,7 @@ def test_one_event_far_ahead_is_dropped_and_costs_nothing():
     t_wall = time.perf_counter()
     nav, out = _stream(events)
     assert time.perf_counter() - t_wall < 60.0
-    assert nav._reorder.dropped_future == 1
+    assert nav.dropped_future_events == 1
     assert not any(isinstance(o, NavigatorReset) for o in out)  # no false gap
     assert [o.to_dict() for o in out] == [o.to_dict() for o in base]  # the outlier changed nothing
     assert nav.metadata()["dropped_future_events"] == "1"
@@ -63,7 +63,7 @@ def test_stream_jumping_ahead_is_bounded_and_reinitialises(jump_s):
     assert len(fused) < 30 * 10 + 20  # one output per 0.1 s of data, none for the jump
     resets = [o for o in out if isinstance(o, NavigatorReset)]
     assert [r.kind for r in resets] == ["reinit"] and resets[0].filter == "ins"
-    assert nav._reorder.dropped_future == 0
+    assert nav.dropped_future_events == 0
     after = [o for o in fused if o.t_s > t_cut + jump_s + 1.0]
     assert after and max(_err_h(sim, o, jump_s) for o in after) < 3.0
 
@@ -226,3 +226,58 @@ def test_kinematic_reset_after_rejection_takes_the_fix_velocity():
         dv = np.hypot(o.vel_n_mps - np.interp(o.t_s, truth[:, 0], truth[:, 3]),
                       o.vel_e_mps - np.interp(o.t_s, truth[:, 0], truth[:, 4]))
         assert dv < 2.5, (r, dv)  # the mixture with the hold model (zero velocity) takes a little off
+
+
+# ---------------------------------------------------------------------------------- the Recovery part alone
+def _fix(t, fix_type=3):
+    return GnssFix(t, fix_type, -35.0, 149.0, 600.0, 1.0, 2.0, None, None, None, 10, 1.0, 1.5, None, None, None,
+                   None, None)
+
+
+def test_recovery_finds_stream_gaps_and_forgets_its_runs_at_reinit():
+    from companion.nav.recovery import Recovery
+
+    rec = Recovery(NavigatorConfig(), [].append)
+    assert not rec.stream_gap(0.0, True) and not rec.stream_gap(5.0, True)  # reinit_gap_s = 5 s: not a gap
+    assert not rec.stream_gap(4.0, True)  # an older event is no gap either
+    assert rec.stream_gap(10.5, False) and rec.pending is None  # a gap before the navigator started: nothing to redo
+    assert rec.stream_gap(20.0, True) and rec.pending == (10.5, 20.0)
+    rec.note_fix(_fix(20.0), (1.0, 2.0, float("nan")))
+    for k in range(5):
+        rec.gnss_reset(20.0 + k, False)
+    assert rec.take_gap() == (20.0, "stream gap 10.500 .. 20.000 s (9.5 s)") and rec.pending is None
+    assert rec.gnss_reset(26.0, False) is None  # the run started again after the gap
+
+
+def test_recovery_resets_after_n_rejections_of_a_good_fix_and_counts_records():
+    from companion.nav.recovery import Recovery
+
+    out = []
+    c = NavigatorConfig()
+    rec = Recovery(c, out.append)
+    assert rec.note_fix(_fix(0.0), None) is False
+    verdicts = [rec.gnss_reset(0.1 * k, False) for k in range(c.reset_after_n_rejected)]
+    assert verdicts[:-1] == [None] * (c.reset_after_n_rejected - 1)
+    assert verdicts[-1] == ("gnss_rejected", "30 GNSS positions rejected over 2.9 s")
+    assert rec.gnss_reset(3.0, False) is None and rec.gnss_reset(3.1, True) is None  # accepted: the run is over
+    for k in range(int(c.gate_reset_s) + 1):  # or gate_reset_s of rejection, at 1 Hz
+        last = rec.gnss_reset(4.0 + k, False)
+    assert last[0] == "gnss_rejected" and "over 5.0 s" in last[1]
+    rec.note_fix(_fix(20.0, fix_type=2), None)  # a 2D fix never resets, however long it is refused
+    assert all(rec.gnss_reset(20.0 + k, False) is None for k in range(40))
+    assert rec.note_fix(_fix(26.0), None) is True  # > reinit_gap_s without any fix: the next one ends a GNSS gap
+    assert rec.gnss_reset(26.0, False, after_gap=True)[0] == "gnss_gap"
+    rec.record(26.0, "gnss_gap", "why", "ins", 3.0, 0.5)
+    rec.record(27.0, "gnss_gap", "why", "ins", 1.0, 0.1)
+    assert rec.resets == {"gnss_gap": 2} and [o.jump_pos_m for o in out] == [3.0, 1.0]
+    assert all(isinstance(o, NavigatorReset) for o in out)
+
+
+def test_recovery_resets_the_tilt_after_n_rejected_attitudes():
+    from companion.nav.recovery import Recovery
+
+    c = NavigatorConfig()
+    rec = Recovery(c, [].append)
+    v = [rec.attitude_reset(0.02 * k, False) for k in range(c.att_reset_after_n_rejected)]
+    assert v[:-1] == [None] * (c.att_reset_after_n_rejected - 1) and v[-1] == "50 autopilot attitudes rejected"
+    assert rec.attitude_reset(2.0, False) is None
