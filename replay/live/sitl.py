@@ -430,7 +430,11 @@ def _print(results) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    a = parse_args(argv)
+    try:
+        a = parse_args(argv)
+    except HarnessError as e:  # no binary, no defaults file: one line, as for any bad argument
+        print(f"sitl: error: {e}", file=sys.stderr)
+        return 2
     if a.from_dir:
         return reanalyse(a, Path(a.from_dir))
     started = time.strftime("%Y-%m-%d %H:%M:%S %Z")

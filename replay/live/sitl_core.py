@@ -479,7 +479,7 @@ class ArmResult:
     notes: list[str] = field(default_factory=list)
 
 
-OWN_MARKS = (10.0, 30.0, 60.0)
+OWN_MARKS = (5.0, 10.0, 30.0, 60.0)
 
 
 def _since(t: float | None, t0: float) -> float:
