@@ -27,8 +27,8 @@ Two back-ends on the same front-end (time handling, map tiles, divergence and si
 
 Learnt misfit sigma (``MapErrorSpec.learn_window_m``): the variance of reading minus the cloud's weighted-mean map
 value over a long distance window, less the reading noise, floored at ``sigma_mgal``, sets the misfit's process
-noise; on a 1600 km aircraft run a cloud km off the truth kept consistent per-particle innovations (the misfit state
-absorbs the mismatch) while this variance grew.
+noise: a cloud far off the truth keeps consistent per-particle innovations (the misfit state absorbs the mismatch)
+while this variance grows (docs/decisions/0008-gravity-map-misfit.md).
 
 INS error model (both back-ends, and the INS-alone covariance the filter carries for re-initialisation): the
 psi-angle model of Titterton & Weston ch. 12 as in replay.gravity.sim.simulate_ins --

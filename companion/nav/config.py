@@ -59,8 +59,8 @@ class NavigatorConfig:
     # a PositionFix corrects the INS position only (velocity, attitude and biases keep their estimates: a Schmidt
     # update, companion.nav.kalman). For fixes that are a running filter's output (the sequential gravity filter):
     # serially correlated, and carrying that filter's own velocity-error estimate, which the cross-covariance would
-    # otherwise turn into velocity corrections at every fix (a live ship run: 13 m/s of velocity error from 1-5 km
-    # fixes in 5 minutes). INS mode only: the kinematic filter takes a PositionFix as it takes any position
+    # otherwise turn into velocity corrections at every fix (docs/decisions/0011). INS mode only: the kinematic
+    # filter takes a PositionFix as it takes any position
     position_fix_position_only: bool = False
     short_term_sigma_h_m: float = 0.3
     short_term_sigma_v_m: float = 0.5

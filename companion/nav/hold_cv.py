@@ -32,7 +32,7 @@ from companion.nav.linalg import inverse
 @dataclass(frozen=True)
 class HoldCvConfig:
     # a hover's wander: chosen on simulated tracks (tests/nav/test_hold_cv.py) so that the models are equally likely
-    # at ~0.9 m/s, just above the hover detector's 0.7 m/s bound (companion.nav.hover); 0.7 here put it at ~1.5 m/s
+    # at ~0.9 m/s, just above the hover detector's 0.7 m/s bound (companion.nav.hover)
     hold_speed_mps: float = 0.3
     dwell_s: float = 30.0  # mean time the vehicle stays in one motion mode (a hover, a leg of a mission)
     min_prob: float = 1e-3  # neither model's probability falls below this (it can always come back)

@@ -197,7 +197,7 @@ class InsFilter:
         """Before a GNSS update: when the modelled latency moved by more than ``gnss_lag.relearn_s`` since this filter
         last re-learnt, widen its tilt and accelerometer-bias uncertainty (to their initial sigmas): the filter
         explained the mis-modelled lag with those states, and with a tight covariance it would keep the wrong values
-        for minutes (on the simulated square: 8 m instead of 2 m after 30 s without GNSS)."""
+        for minutes, and drift on them once GNSS stops."""
         if self.latency.estimator is None:
             return
         d = self.latency.delay_s()
@@ -236,8 +236,8 @@ class InsFilter:
 
     def reset_to_fix(self, t: float, dp, fix_vel, sigma_h_m: float, sigma_v_m: float) -> np.ndarray:
         """Reset position by ``dp`` and each velocity component the fix has (GPS_RAW_INT has no vertical one) to it,
-        with the fix's covariance x ``reset_cov_scale`` (a position reset alone kept a velocity 17 m/s off and the
-        output left its stated accuracy). Returns the velocity jump."""
+        with the fix's covariance x ``reset_cov_scale`` (a position reset alone keeps a wrong velocity, and the output
+        leaves its stated accuracy). Returns the velocity jump."""
         c = self.config
         kf = self.kf
         dv = np.zeros(3)

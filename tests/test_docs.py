@@ -1,0 +1,132 @@
+"""The documentation is navigable and the code is not a lab notebook.
+
+- Every relative link in README.md, BENCHMARKS.md and docs/ reaches a file, and its #anchor a heading there.
+- README.md stays a front page (<= 200 lines); BENCHMARKS.md opens with its summary, current with the results.
+- Docstrings and comments in companion/ say what the code does and why, in a few lines: beside
+  tests/test_layout.py's lab-notebook check (a page-long docstring, the shared logs' names, pooled or held-out
+  scores, before -> after numbers), no class or function docstring over half a page, no results table, seed or
+  value's history ("was 789 m") and no stale qualifier (those go to docs/decisions/, linked from the setting).
+"""
+
+from __future__ import annotations
+
+import ast
+import io
+import re
+import tokenize
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+README_MAX_LINES = 200
+DOCSTRING_MAX_LINES = 25  # a class's or function's: what it does and why (a module's design notes: test_layout.py)
+
+_LINK = re.compile(r"(?<!\!)\[[^\]]*\]\(([^)\s]+)\)|!\[[^\]]*\]\(([^)\s]+)\)")
+_FENCE = re.compile(r"^```.*?^```", re.M | re.S)
+_CODE = re.compile(r"`[^`\n]*`")
+
+
+def doc_files() -> list[Path]:
+    return [ROOT / "README.md", ROOT / "BENCHMARKS.md", *sorted((ROOT / "docs").rglob("*.md"))]
+
+
+def github_anchors(markdown: str) -> set[str]:
+    """The anchors GitHub gives the headings of a markdown text (lower case, punctuation dropped, spaces to '-',
+    a repeated one numbered -1, -2, ...)."""
+    seen: dict[str, int] = {}
+    out = set()
+    for line in _FENCE.sub("", markdown).splitlines():
+        m = re.match(r"^#{1,6} +(.*?)\s*#*\s*$", line)
+        if not m:
+            continue
+        text = re.sub(r"\[([^\]]*)\]\([^)]*\)", r"\1", m.group(1))  # a link's text only
+        slug = re.sub(r"[^\w\- ]", "", text.lower()).replace(" ", "-")
+        n = seen.get(slug, 0)
+        seen[slug] = n + 1
+        out.add(slug if n == 0 else f"{slug}-{n}")
+    return out
+
+
+def links(path: Path) -> list[str]:
+    text = _CODE.sub("", _FENCE.sub("", path.read_text()))
+    return [a or b for a, b in _LINK.findall(text)]
+
+
+def broken_links(path: Path) -> list[str]:
+    bad = []
+    for target in links(path):
+        if re.match(r"^[a-z][a-z0-9+.-]*:", target):  # https:, mailto:
+            continue
+        file_part, _, anchor = target.partition("#")
+        dest = (path.parent / file_part).resolve() if file_part else path
+        if not dest.exists():
+            bad.append(f"{target}: no such file")
+        elif anchor and dest.suffix == ".md" and anchor not in github_anchors(dest.read_text()):
+            bad.append(f"{target}: no heading #{anchor} in {dest.relative_to(ROOT)}")
+    return bad
+
+
+@pytest.mark.parametrize("path", doc_files(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_links_resolve(path: Path):
+    assert broken_links(path) == []
+
+
+def test_anchor_rules():
+    anchors = github_anchors("# A: b (`c` + `d`), 8 m/s\n## Plots\n## Plots\n```\n# not a heading\n```\n")
+    assert anchors == {"a-b-c--d-8-ms", "plots", "plots-1"}
+
+
+def _docstrings(tree: ast.AST):
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+            doc = ast.get_docstring(node, clean=True)
+            if doc:
+                yield node, doc
+
+
+def _code_files() -> list[Path]:
+    return sorted((ROOT / "companion").rglob("*.py"))
+
+
+def test_class_and_function_docstrings_are_short():
+    long = [f"{path.relative_to(ROOT)}:{node.name}: {len(doc.splitlines())} lines > {DOCSTRING_MAX_LINES}"
+            for path in _code_files() for node, doc in _docstrings(ast.parse(path.read_text()))
+            if not isinstance(node, ast.Module) and len(doc.splitlines()) > DOCSTRING_MAX_LINES]
+    assert long == []
+
+
+#: what a lab notebook leaves in code besides test_layout.py's patterns: a results table, a shared log's name,
+#: a seed (one run's result), a value's history ("was 789 m") and stale qualifiers. Tuning history goes to
+#: docs/decisions/ (question, command, measured, chosen) and the setting links it.
+NOTEBOOK = re.compile(
+    r"^\s*\|.*\|.*\|"  # a markdown table row
+    r"|\blog1\d\d\b|\bphoenix\b|\bdiaven\b"  # the shared logs by name
+    r"|\bseeds? \d"
+    r"|\bwas \d|\bnot rerun\b|\bpredate|\bbefore (?:that|this|the) change\b",
+    re.I)
+
+
+def _comments_and_docstrings(path: Path):
+    src = path.read_text()
+    for tok in tokenize.generate_tokens(io.StringIO(src).readline):
+        if tok.type == tokenize.COMMENT:
+            yield tok.start[0], tok.string
+    for node, _doc in _docstrings(ast.parse(src)):
+        first = node.body[0]
+        for i, line in enumerate(first.value.value.splitlines()):
+            yield first.lineno + i, line
+
+
+def test_no_notebook_in_code():
+    found = [f"{path.relative_to(ROOT)}:{line}: {text.strip()}"
+             for path in _code_files() for line, text in _comments_and_docstrings(path) if NOTEBOOK.search(text)]
+    assert found == []
+
+
+def test_notebook_pattern_catches_what_it_should():
+    for text in ["| log | 8 s |", "RMSE on log172 2.1 m", "752 m mean (was 789 m)", "seed 8", "not rerun since",
+                 "the numbers below predate it", "measured before that change"]:
+        assert NOTEBOOK.search(text), text
+    for text in ["x | y", "the 2 s a SIGTERM may take", "rejected by the gate", "a map cell"]:
+        assert not NOTEBOOK.search(text), text
