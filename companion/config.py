@@ -93,6 +93,9 @@ class GravityConfig:
     map: str = ""  # gravity anomaly grid (netCDF, mGal) covering the area flown
     matcher: str = "viterbi"  # viterbi | knn | iccp (window matchers) | sequential (every reading, slow vehicles)
     named_value: str = "GRAV"  # NAMED_VALUE_FLOAT.name of the readings (1-10 characters)
+    # false: the readings still hold the Eotvos term (a gravimeter that does not know the vehicle's velocity); the
+    # gravity stage corrects them with the navigator's velocity
+    eotvos_corrected: bool = True
     sigma_mgal: float = 1.0  # gravimeter noise per reading (matcher likelihood, acceptance test)
     feed_spacing_m: float = 0.0  # average readings over this much track per matcher sample; 0: one map cell
     accept_min_track_cells: float = 2.0  # fix acceptance: matcher window >= this many map cells of track
@@ -345,6 +348,9 @@ def _validate_gravity(g: GravityConfig) -> None:
         raise ConfigError(f"gravity.map: {g.map} is not a file")
     if g.matcher not in MATCHERS:
         raise ConfigError(f"gravity.matcher must be one of {', '.join(MATCHERS)}, got {g.matcher!r}")
+    if not g.eotvos_corrected and g.matcher != "sequential":
+        raise ConfigError("gravity.eotvos_corrected = false needs gravity.matcher = \"sequential\" (the stage that "
+                          "corrects a reading with the navigator's velocity)")
     if not 1 <= len(g.named_value) <= 10:
         raise ConfigError("gravity.named_value must be 1-10 characters (NAMED_VALUE_FLOAT.name)")
     if not g.sigma_mgal > 0:

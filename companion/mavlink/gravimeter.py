@@ -17,11 +17,12 @@ DEFAULT_NAMED_VALUE = "GRAV"  # NAMED_VALUE_FLOAT.name is at most 10 characters
 class NamedValueGravityDecoder:
     """NAMED_VALUE_FLOAT(name == `name`) -> GravityReading; time from time_boot_ms (s), else the receive time."""
 
-    def __init__(self, name: str = DEFAULT_NAMED_VALUE, sigma_mgal: float | None = None):
+    def __init__(self, name: str = DEFAULT_NAMED_VALUE, sigma_mgal: float | None = None, eotvos_corrected: bool = True):
         if not name or len(name) > 10:
             raise ValueError("NAMED_VALUE_FLOAT names are 1-10 characters")
         self.name = name
         self.sigma_mgal = sigma_mgal
+        self.eotvos_corrected = bool(eotvos_corrected)  # False: the readings still hold the Eotvos term
 
     def value(self, msg) -> float | None:
         """The reading (mGal) if ``msg`` is a NAMED_VALUE_FLOAT of this name with a finite value, else None."""
@@ -34,7 +35,8 @@ class NamedValueGravityDecoder:
         return v if math.isfinite(v) else None
 
     def reading(self, t_s: float, value_mgal: float) -> GravityReading:
-        return GravityReading(t_s=float(t_s), gravity_mgal=value_mgal, sigma_mgal=self.sigma_mgal, sensor=f"mavlink:{self.name}")
+        return GravityReading(t_s=float(t_s), gravity_mgal=value_mgal, sigma_mgal=self.sigma_mgal,
+                              eotvos_corrected=self.eotvos_corrected, sensor=f"mavlink:{self.name}")
 
     def decode(self, msg, recv_s: float | None = None) -> GravityReading | None:
         """Standalone use: time = time_boot_ms (s), else the receive time. (On a live link the MavlinkDecoder puts

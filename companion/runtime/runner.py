@@ -91,7 +91,8 @@ class Runtime:
 
             self.gravity_stage = live_gravity_stage(config.gravity)
             stages.append(self.gravity_stage)
-            gravity = NamedValueGravityDecoder(config.gravity.named_value, config.gravity.sigma_mgal)
+            gravity = NamedValueGravityDecoder(config.gravity.named_value, config.gravity.sigma_mgal,
+                                               eotvos_corrected=config.gravity.eotvos_corrected)
         nav_config = nav_config or config.nav_config()
         self.link = MavlinkLink(config.link, config.streams, gravity=gravity)
         sender = self.link.send if config.inject.mode == "inject" else None

@@ -250,3 +250,21 @@ def test_live_companion_matches_simulated_gravimeter_and_fuses_fixes(tmp_path):
     inj = summarize(out).metadata_dict("Injector")
     withheld = sum(int(v) for k, v in inj.items() if k.startswith("dropped.stale"))
     assert len(gi) > 1000 and len(gi) + withheld > 6500, (len(gi), withheld, inj)
+
+
+def test_readings_marked_uncorrected_reach_the_stage_so(tmp_path):
+    """gravity.eotvos_corrected = false: the link's readings say they still hold the Eotvos term (the sequential stage
+    then corrects them); other matchers cannot, so the setting is refused for them."""
+    dec = MavlinkDecoder(gravity=NamedValueGravityDecoder("GRAV", eotvos_corrected=False))
+    dec.decode(_msgs(mav.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3))[0], 0.0)
+    dec.decode(_msgs(mav.MAVLink_attitude_message(10_000, 0, 0, 0, 0, 0, 0))[0], 0.0)
+    out = dec.decode(_msgs(mav.MAVLink_named_value_float_message(10_500, b"GRAV", 12.5))[0], 0.1)
+    (r,) = [e for e in out if isinstance(e, GravityReading)]
+    assert r.eotvos_corrected is False and r.gravity_mgal == 12.5
+    assert NamedValueGravityDecoder("GRAV").reading(1.0, 2.0).eotvos_corrected is True
+    grid = tmp_path / "m.nc"
+    grid.write_bytes(b"")
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f'[link]\nconnect = "udpin:127.0.0.1:14550"\n[gravity]\nmap = "{grid}"\neotvos_corrected = false\n')
+    with pytest.raises(ConfigError, match="eotvos_corrected"):
+        load_config(cfg)

@@ -1,0 +1,152 @@
+"""A simulated gravimeter as its own component on an ArduPilot SITL vehicle: it reads the simulator's truth
+(SIMSTATE) from a spare SITL MAVLink port and sends its readings as NAMED_VALUE_FLOAT ``GRAV`` (mGal) with the
+autopilot's system id, which ArduPilot routes to its other links -- where the companion takes them like any
+gravimeter's (companion.mavlink.gravimeter).
+
+    python -m companion.sim.sitl_gravimeter_link --connect tcp:127.0.0.1:5763 --map GRID.nc --seed 1 --record g.jsonl
+
+Time: SIMSTATE has no time field; each is stamped with the newest ``time_boot_ms`` seen before it (ATTITUDE is
+requested at the same rate), and a reading goes out every ``--period-s`` of that vehicle time with it as its
+``time_boot_ms``. The sensor model is companion.sim.truth_gravimeter; ``--record`` keeps every reading beside the
+truth and the map value at it (JSON lines).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import signal
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from companion.gravity.maps import LocalGravityMap, load_grid
+from companion.mavlink.gravimeter import DEFAULT_NAMED_VALUE
+from companion.sim.gravity_residuals import ship_minus_satellite_mgal
+from companion.sim.truth_gravimeter import GravimeterSpec, TruthGravimeter
+
+#: MAV_COMP_ID_PERIPHERAL: the gravimeter speaks as a peripheral of the vehicle's system
+GRAVIMETER_COMPONENT = 158
+
+
+class GravimeterOnLink:
+    """Message in -> readings out: ``on_message`` returns the (time_boot_ms, mGal) readings due (pure, testable)."""
+
+    def __init__(self, meter: TruthGravimeter, period_s: float = 1.0):
+        self.meter = meter
+        self.period_s = float(period_s)
+        self.t_boot_s: float | None = None
+        self.next_s: float | None = None
+        self.last_truth: tuple[float, float] | None = None
+        self.sent = 0
+
+    def on_message(self, m) -> list[tuple[int, float]]:
+        kind = m.get_type()
+        tb = getattr(m, "time_boot_ms", None)
+        if tb is not None and kind != "SIMSTATE":
+            self.t_boot_s = tb / 1000.0 if self.t_boot_s is None else max(self.t_boot_s, tb / 1000.0)
+            return []
+        if kind != "SIMSTATE" or self.t_boot_s is None:
+            return []
+        lat, lon = m.lat * 1e-7, m.lng * 1e-7
+        if lat == 0.0 and lon == 0.0:
+            return []
+        t = self.t_boot_s
+        self.meter.sample(t, lat, lon)
+        self.last_truth = (lat, lon)
+        if self.next_s is None:
+            self.next_s = t + self.period_s
+        if t + 1e-9 < self.next_s:
+            return []
+        self.next_s += self.period_s * max(1, math.floor((t - self.next_s) / self.period_s) + 1)
+        v = self.meter.read(t)
+        if v is None or not math.isfinite(v):
+            return []
+        self.sent += 1
+        return [(int(round(t * 1000.0)), v)]
+
+
+def build_meter(map_path: str, seed: int, spec: GravimeterSpec, origin: tuple[float, float] | None = None) -> TruthGravimeter:
+    gmap = load_grid(map_path)
+    lmap = LocalGravityMap.around(gmap)
+    rng = np.random.default_rng(seed)
+    return TruthGravimeter(lmap, spec, rng, ship_minus_satellite_mgal() if spec.misfit else None, origin)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m companion.sim.sitl_gravimeter_link", description=__doc__.splitlines()[0])
+    ap.add_argument("--connect", required=True, help="pymavlink address of a spare SITL port, e.g. tcp:127.0.0.1:5763")
+    ap.add_argument("--map", required=True, help="gravity grid (netCDF, mGal)")
+    ap.add_argument("--origin", default=None, help="LAT,LON that (0, 0) of a grid in a local metric frame stands for")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--period-s", type=float, default=1.0)
+    ap.add_argument("--sigma-mgal", type=float, default=GravimeterSpec.white_sigma_mgal)
+    ap.add_argument("--bias-sigma-mgal", type=float, default=GravimeterSpec.bias_sigma_mgal)
+    ap.add_argument("--drift-sigma-mgal-per-h", type=float, default=GravimeterSpec.drift_sigma_mgal_per_h)
+    ap.add_argument("--window-s", type=float, default=GravimeterSpec.window_s)
+    ap.add_argument("--no-eotvos", action="store_true", help="send Eotvos-corrected readings")
+    ap.add_argument("--no-misfit", action="store_true", help="no real map misfit")
+    ap.add_argument("--name", default=DEFAULT_NAMED_VALUE)
+    ap.add_argument("--system-id", type=int, default=1, help="the vehicle's system id")
+    ap.add_argument("--record", default=None, help="JSON lines of every reading with its truth")
+    ap.add_argument("--rate-hz", type=float, default=10.0, help="SIMSTATE/ATTITUDE rate asked of the autopilot")
+    a = ap.parse_args(argv)
+    spec = GravimeterSpec(a.sigma_mgal, a.bias_sigma_mgal, a.drift_sigma_mgal_per_h, a.window_s, not a.no_eotvos,
+                          not a.no_misfit)
+    origin = tuple(float(x) for x in a.origin.split(",")) if a.origin else None
+    meter = build_meter(a.map, a.seed, spec, origin)
+    gl = GravimeterOnLink(meter, a.period_s)
+
+    from pymavlink import mavutil
+
+    deadline = time.monotonic() + 60.0
+    while True:
+        try:
+            link = mavutil.mavlink_connection(a.connect, dialect="ardupilotmega", source_system=a.system_id,
+                                              source_component=GRAVIMETER_COMPONENT, retries=0)
+            break
+        except OSError as e:
+            if time.monotonic() > deadline:
+                print(f"gravimeter: cannot connect {a.connect}: {e}", file=sys.stderr)
+                return 2
+            time.sleep(0.2)
+    stop = {"v": False}
+    signal.signal(signal.SIGTERM, lambda *_: stop.update(v=True))
+    rec = open(a.record, "w") if a.record else None
+    mav = link.mav
+    mav.srcSystem, mav.srcComponent = a.system_id, GRAVIMETER_COMPONENT
+    print(f"gravimeter: {a.connect} bias {meter.bias_mgal:+.2f} mGal drift {meter.drift_mgal_per_s * 3600:+.2f} mGal/h "
+          f"window {spec.window_s:g} s", flush=True)
+    asked = 0.0
+    try:
+        while not stop["v"]:
+            now = time.monotonic()
+            if now - asked > 5.0:  # (re)ask for the truth streams until they flow
+                asked = now
+                for mid in (mavutil.mavlink.MAVLINK_MSG_ID_SIMSTATE, mavutil.mavlink.MAVLINK_MSG_ID_ATTITUDE):
+                    mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, mid,
+                                          1e6 / a.rate_hz, 0, 0, 0, 0, 0)
+                mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GENERIC, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            m = link.recv_match(blocking=True, timeout=0.2)
+            if m is None:
+                continue
+            for tb_ms, v in gl.on_message(m):
+                mav.named_value_float_send(tb_ms, a.name.encode(), float(v))
+                if rec is not None:
+                    lat, lon = gl.last_truth
+                    rec.write(json.dumps({"t_s": tb_ms / 1000.0, "mgal": v, "lat": lat, "lon": lon,
+                                          "map_mgal": meter.truth_value_mgal(lat, lon)}) + "\n")
+    except (ConnectionError, OSError):
+        pass
+    finally:
+        if rec is not None:
+            rec.close()
+        print(f"gravimeter: {gl.sent} readings sent", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
