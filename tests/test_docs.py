@@ -77,6 +77,25 @@ def test_anchor_rules():
     assert anchors == {"a-b-c--d-8-ms", "plots", "plots-1"}
 
 
+def test_readme_is_a_front_page():
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= README_MAX_LINES
+    top = text.split("\n## ")[0]  # the two commands before the first section
+    assert "./dev.sh replay" in top and "./dev.sh test" in top
+
+
+#: a sentence about the past, not the present: how a number used to be, or a result that no longer matches the code
+STALE = re.compile(r"\bwas \d|\bwere \d|\bnot rerun\b|\bpredate|\bbefore (?:that|this|the) change\b|\bmeasured on 20\d\d-",
+                   re.I)
+
+
+@pytest.mark.parametrize("path", [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))],
+                         ids=lambda p: str(p.relative_to(ROOT)))
+def test_docs_are_current(path: Path):
+    """README and the topic pages state what is true now (history belongs to docs/decisions/, git and CHANGELOG)."""
+    assert [line for line in path.read_text().splitlines() if STALE.search(line)] == []
+
+
 def _docstrings(tree: ast.AST):
     for node in ast.walk(tree):
         if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
