@@ -1,0 +1,244 @@
+"""Pure logic of the gravity-aided ArduPilot SITL A/B (replay.live.sitl_gravity): the survey mission over a gravity
+grid, the flight's schedule (GNSS, denial, return; the wind turning during the denial), and the figures of one arm
+against SITL's truth in the schema of ``DIR/summary.json``. No processes, no sockets; driven by a
+replay.live.sitl_core.FlightLog and the companion's GPS_INPUT records, so the unit tests feed it scripted data.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from pymavlink import mavutil
+
+from companion.gravity.maps import LocalGravityMap
+from companion.nav.frame import LocalFrame
+from companion.sim.cruise import survey_waypoints
+from replay.live import sitl_core as core
+
+PLANE_MODES: dict[int, str] = dict(mavutil.mode_mapping_apm)
+ROVER_MODES: dict[int, str] = dict(mavutil.mode_mapping_rover)
+MARK_MIN = tuple(range(5, 61, 5))
+
+
+# -- the mission ---------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Survey:
+    """Lawn-mower lines from ``origin`` (lat, lon): ``lines`` lines of ``line_km`` along ``heading_deg``, ``spacing_km``
+    apart (the next to the right), flown at ``alt_m`` above home; the vehicle flies them over and over."""
+
+    origin: tuple[float, float]
+    line_km: float = 30.0
+    spacing_km: float = 4.0
+    lines: int = 4
+    heading_deg: float = 0.0
+    alt_m: float = 150.0
+
+    def corners_ne_m(self) -> np.ndarray:
+        """The corners from the origin (first line start) in NE metres, closed back to the start."""
+        per_loop = self.lines * (self.line_km + self.spacing_km) * 1e3
+        pts = survey_waypoints(per_loop, self.line_km * 1e3, self.spacing_km * 1e3, self.heading_deg,
+                               max_lines=self.lines)
+        pts = np.array([(0.0, 0.0)] + [tuple(p) for p in pts])
+        keep = [0] + [i for i in range(1, len(pts)) if np.hypot(*(pts[i] - pts[i - 1])) > 1.0]
+        pts = pts[keep]
+        # the pattern comes back across: stop at the last line's end and close the loop to the start
+        out = [pts[0]]
+        for p in pts[1:]:
+            out.append(p)
+            if len(out) >= 2 * self.lines:
+                break
+        return np.array(out + [pts[0]])
+
+    def corners_lat_lon(self) -> list[tuple[float, float]]:
+        fr = LocalFrame(self.origin[0], self.origin[1], 0.0)
+        ne = self.corners_ne_m()
+        lat, lon, _ = fr.to_geodetic(np.column_stack([ne, np.zeros(len(ne))]))
+        return list(zip(np.atleast_1d(lat).tolist(), np.atleast_1d(lon).tolist()))
+
+    def loop_length_m(self) -> float:
+        ne = self.corners_ne_m()
+        return float(np.sum(np.hypot(*np.diff(ne, axis=0).T)))
+
+
+def map_signal(survey: Survey, lmap: LocalGravityMap, step_m: float = 500.0,
+               origin_lat_lon: tuple[float, float] | None = None) -> dict[str, float]:
+    """The map along the planned lines: its STD (mGal), the share of the path on valid map, and the mean gradient
+    (mGal/km) -- whether the lines lie over signal a matcher can use. ``origin_lat_lon`` lays a local metric grid's
+    (0, 0) at that point."""
+    ne = survey.corners_ne_m()
+    pts = []
+    for a, b in zip(ne[:-1], ne[1:]):
+        k = max(1, int(np.hypot(*(b - a)) / step_m))
+        pts += [a + (b - a) * i / k for i in range(k)]
+    p = np.array(pts)
+    fr = LocalFrame(survey.origin[0], survey.origin[1], 0.0)
+    lat, lon, _ = fr.to_geodetic(np.column_stack([p, np.zeros(len(p))]))
+    if lmap.frame is not None:
+        n, e = lmap.xy_to_ne(lon, lat)
+    else:
+        o = LocalFrame(*(origin_lat_lon or survey.origin), 0.0).to_ned_m(lat, lon, 0.0)
+        n, e = o[..., 0], o[..., 1]
+    g = lmap.interp_ne(n, e)
+    ok = np.isfinite(g)
+    grad = np.abs(np.diff(g)) / (step_m / 1e3)
+    return {"std_mgal": float(np.std(g[ok])) if ok.any() else math.nan, "on_map": float(ok.mean()),
+            "grad_mgal_per_km": float(np.nanmean(grad)) if np.isfinite(grad).any() else math.nan}
+
+
+def cross_track_m(lat, lon, survey: Survey) -> np.ndarray:
+    """Distance of each true position from the nearest planned line (m)."""
+    fr = LocalFrame(survey.origin[0], survey.origin[1], 0.0)
+    q = fr.to_ned_m(np.asarray(lat, float), np.asarray(lon, float), 0.0)[..., :2].reshape(-1, 2)
+    c = survey.corners_ne_m()
+    best = np.full(len(q), np.inf)
+    for a, b in zip(c[:-1], c[1:]):
+        d = b - a
+        L2 = float(d @ d)
+        s = np.clip(((q - a) @ d) / L2, 0.0, 1.0) if L2 > 0 else np.zeros(len(q))
+        best = np.minimum(best, np.hypot(*(q - (a + s[:, None] * d)).T))
+    return best
+
+
+# -- the flight's schedule -----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Schedule:
+    """Minutes after the survey start: GNSS for ``healthy_min``, denied for ``denial_min``, back for ``back_min``.
+    The wind (``wind_mps`` from ``wind_dir_deg``, turbulence ``turb_mps``) turns by ``wind_turn_deg`` every
+    ``wind_turn_min`` of the denial."""
+
+    healthy_min: float = 20.0
+    denial_min: float = 60.0
+    back_min: float = 5.0
+    wind_mps: float = 7.0
+    wind_dir_deg: float = 240.0
+    turb_mps: float = 2.0
+    wind_turn_deg: float = 40.0
+    wind_turn_min: float = 15.0
+
+    def events(self, t0_s: float) -> list[tuple[float, str, dict[str, float]]]:
+        """(vehicle time, label, parameters to set) in time order, from survey start ``t0_s``."""
+        on = t0_s + 60.0 * self.healthy_min
+        off = on + 60.0 * self.denial_min
+        ev = [(on, "deny_on", {"SIM_GPS1_ENABLE": 0.0})]
+        k = 1
+        while self.wind_turn_min > 0 and k * self.wind_turn_min < self.denial_min:
+            d = (self.wind_dir_deg + k * self.wind_turn_deg) % 360.0
+            ev.append((on + 60.0 * k * self.wind_turn_min, f"wind {d:.0f} deg", {"SIM_WIND_DIR": d}))
+            k += 1
+        ev.append((off, "deny_off", {"SIM_GPS1_ENABLE": 1.0}))
+        ev.append((off + 60.0 * self.back_min, "end", {}))
+        return sorted(ev, key=lambda x: x[0])
+
+    def sim_params(self) -> dict[str, float]:
+        return {"SIM_WIND_SPD": self.wind_mps, "SIM_WIND_DIR": self.wind_dir_deg, "SIM_WIND_TURB": self.turb_mps}
+
+
+# -- one arm's figures ---------------------------------------------------------------------------------------------
+FAILSAFE_TEXT = ("failsafe", "dead reckoning", "emergency", "mission abort", "rtl", "land")
+
+
+def failsafes(log: core.FlightLog, deny_on: float, modes: dict[int, str]) -> list[list]:
+    """Every mode change and failsafe-like message after the survey started (``marks['route']``), as [minute after
+    the denial began, text] (negative: before it)."""
+    t0 = log.marks.get("route", deny_on)
+    out = []
+    for t, m, _armed in log.modes:
+        if math.isfinite(t) and t > t0:
+            out.append([round((t - deny_on) / 60.0, 2), f"mode {modes.get(m, m)}"])
+    for t, _sev, txt in log.texts:
+        if math.isfinite(t) and t > t0 and any(w in txt.lower() for w in FAILSAFE_TEXT):
+            out.append([round((t - deny_on) / 60.0, 2), txt])
+    return sorted(out)
+
+
+def reconverge_s(t: np.ndarray, err: np.ndarray, t_back: float, level_m: float, hold_s: float = 10.0) -> float:
+    """Seconds after ``t_back`` until the error is within ``level_m`` and stays there for ``hold_s``; NaN never."""
+    sel = t >= t_back
+    tt, ee = t[sel], err[sel]
+    for i in range(len(tt)):
+        if ee[i] <= level_m:
+            w = (tt >= tt[i]) & (tt <= tt[i] + hold_s)
+            if np.all(ee[w] <= level_m) and tt[w][-1] >= tt[i] + hold_s - 1.0:
+                return float(tt[i] - t_back)
+    return math.nan
+
+
+def _nearest(t, v, at, tol):
+    if len(t) == 0:
+        return math.nan
+    i = int(np.argmin(np.abs(t - at)))
+    return float(v[i]) if abs(t[i] - at) <= tol else math.nan
+
+
+def _f(x: float) -> float | None:
+    return None if x is None or not math.isfinite(x) else round(float(x), 2)
+
+
+def arm_summary(log: core.FlightLog, survey: Survey, modes: dict[int, str], kept_up: bool,
+                records: list[dict] | None = None, healthy_level_m: float | None = None) -> dict:
+    """One ARM of summary.json (module doc): the EKF's horizontal error against the truth at every 5 min of the denial,
+    its mean and max over the denial, failsafes and mode changes, whether the run kept up; with ``records`` (the
+    companion's GPS_INPUT) the share of its 3D fixes in the denial within 2x their h_acc, the EKF's jump when GNSS came
+    back, and the time until its error is back within ``healthy_level_m`` (arm A's healthy error)."""
+    t, err = core.ekf_error(log)
+    on, off = log.marks.get("deny_on", math.nan), log.marks.get("deny_off", math.nan)
+    route = log.marks.get("route", on)
+    den = (t >= on) & (t < off)
+    healthy = (t >= route + 120.0) & (t < on)
+    tr = np.asarray(log.truth, float).reshape(-1, 3)
+    xt = cross_track_m(tr[:, 1], tr[:, 2], survey) if len(tr) else np.zeros(0)
+    xt_t = tr[:, 0] if len(tr) else np.zeros(0)
+    xden = (xt_t >= on) & (xt_t < off)
+    out = {
+        "error_m_at_min": {str(m): _f(_nearest(t, err, on + 60.0 * m, 2.0)) for m in MARK_MIN
+                           if m * 60.0 <= (off - on) + 1.0},
+        "mean_m": _f(float(err[den].mean())) if den.any() else None,
+        "max_m": _f(float(err[den].max())) if den.any() else None,
+        "healthy_mean_m": _f(float(err[healthy].mean())) if healthy.any() else None,
+        "healthy_p95_m": _f(float(np.percentile(err[healthy], 95))) if healthy.any() else None,
+        "cross_track_mean_m": _f(float(xt[xden].mean())) if xden.any() else None,
+        "cross_track_max_m": _f(float(xt[xden].max())) if xden.any() else None,
+        "failsafes": failsafes(log, on, modes),
+        "kept_up": bool(kept_up),
+        "return_jump_m": _f(core.return_jump(log, off)) if math.isfinite(off) else None,
+    }
+    level = healthy_level_m if healthy_level_m is not None else out["healthy_p95_m"]
+    out["reconverge_s"] = _f(reconverge_s(t, err, off, level)) if level is not None and math.isfinite(off) else None
+    if records is not None:
+        own_t, own_err, own_fx, own_hacc = core.companion_error(records, log.truth)
+        sel = (own_t >= on) & (own_t < off) & (own_fx >= 3) & np.isfinite(own_hacc) & (own_hacc > 0)
+        out["within_2hacc_frac"] = _f(float(np.mean(own_err[sel] <= 2.0 * own_hacc[sel]))) if sel.any() else None
+        out["fixes_in_denial"] = int(sel.sum())
+        before = (own_t < off) & (own_fx >= 3)
+        out["last_hacc_m"] = _f(float(own_hacc[before][-1])) if before.any() else None
+        out["own_mean_m"] = _f(float(own_err[sel].mean())) if sel.any() else None
+    return out
+
+
+def validate_summary(s: dict) -> list[str]:
+    """What is missing or mistyped in a summary.json against the schema (empty: valid)."""
+    bad = []
+    arms = s.get("arms")
+    if not isinstance(arms, dict) or set(arms) != {"alone", "companion"} and not set(arms) <= {"alone", "companion"}:
+        return ["arms must be a dict with alone and/or companion"]
+    for name, a in arms.items():
+        for k, typ in (("error_m_at_min", dict), ("failsafes", list), ("kept_up", bool)):
+            if not isinstance(a.get(k), typ):
+                bad.append(f"{name}.{k} missing or not {typ.__name__}")
+        for k in ("mean_m", "max_m"):
+            if k not in a or not (a[k] is None or isinstance(a[k], (int, float))):
+                bad.append(f"{name}.{k} missing or not a number")
+        if isinstance(a.get("error_m_at_min"), dict):
+            for m, v in a["error_m_at_min"].items():
+                if not (m.isdigit() and int(m) % 5 == 0 and (v is None or isinstance(v, (int, float)))):
+                    bad.append(f"{name}.error_m_at_min[{m!r}] not minute -> metres")
+        for f in a.get("failsafes") or []:
+            if not (isinstance(f, list) and len(f) == 2 and isinstance(f[0], (int, float)) and isinstance(f[1], str)):
+                bad.append(f"{name}.failsafes entry {f!r} not [minute, text]")
+        if name == "companion":
+            for k in ("within_2hacc_frac", "return_jump_m", "reconverge_s"):
+                if k not in a:
+                    bad.append(f"companion.{k} missing")
+    return bad

@@ -1,0 +1,111 @@
+"""The table and plot of the gravity-aided SITL A/B (replay.live.sitl_gravity) from its summary.json and flight logs,
+with the issue's targets judged from the numbers (each verdict says by how much)."""
+
+from __future__ import annotations
+
+import math
+
+from replay.harness.results import md_table
+
+TARGETS = {"plane": {"ratio": 0.25, "mean_m": 1500.0}, "rover": {"ratio": 0.5, "mean_m": 3000.0}}
+
+
+def _m(v, unit: str = "") -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "-"
+    if isinstance(v, float) and abs(v) >= 100:
+        return f"{v:.0f}{unit}"
+    return f"{v:.1f}{unit}" if isinstance(v, float) else f"{v}{unit}"
+
+
+def table(summary: dict, vehicle: str) -> str:
+    arms = summary["arms"]
+    mins = sorted({int(k) for s in arms.values() for k in s["error_m_at_min"]})
+    head = ["arm", "kept up"] + [f"{m} min" for m in mins] + ["mean", "max", "healthy mean", "cross-track mean / max",
+                                                              "within 2x h_acc", "jump at return", "re-converged"]
+    rows = []
+    for name, s in arms.items():
+        rows.append([name, "yes" if s["kept_up"] else "NO (invalid)"] + [_m(s["error_m_at_min"].get(str(m))) for m in mins]
+                    + [_m(s["mean_m"]), _m(s["max_m"]), _m(s.get("healthy_mean_m")),
+                       f"{_m(s.get('cross_track_mean_m'))} / {_m(s.get('cross_track_max_m'))}",
+                       "-" if s.get("within_2hacc_frac") is None else f"{s['within_2hacc_frac']:.0%} of {s.get('fixes_in_denial', 0)}",
+                       _m(s.get("return_jump_m")), _m(s.get("reconverge_s"), " s")])
+    out = ["EKF horizontal error vs SITL truth (m), minutes into the GNSS denial:", "", md_table(head, rows), ""]
+    for name, s in arms.items():
+        fs = "; ".join(f"{m:+.1f} min {t}" for m, t in s["failsafes"]) or "none"
+        out.append(f"- {name}: mode changes and failsafe messages after the survey start: {fs}")
+    out += [""] + verdicts(summary, vehicle)
+    return "\n".join(out)
+
+
+def verdicts(summary: dict, vehicle: str) -> list[str]:
+    arms = summary["arms"]
+    if not {"alone", "companion"} <= set(arms):
+        return []
+    A, B = arms["alone"], arms["companion"]
+    tg = TARGETS[vehicle]
+    out = ["Against the targets:", ""]
+    if not (A["kept_up"] and B["kept_up"]):
+        out.append("- the run is INVALID (an arm did not keep up): no target is judged")
+        return out
+    for m in ("30", "60"):
+        a, b = A["error_m_at_min"].get(m), B["error_m_at_min"].get(m)
+        if a and b is not None:
+            r = b / a
+            out.append(f"- {m} min: companion {b:.0f} m = {r:.2f}x alone ({a:.0f} m); target <= {tg['ratio']}x: "
+                       + ("met" if r <= tg["ratio"] else f"MISSED by {r - tg['ratio']:.2f}x ({b - tg['ratio'] * a:.0f} m)"))
+    if B["mean_m"] is not None:
+        ok = B["mean_m"] <= tg["mean_m"]
+        out.append(f"- mean over the denial: {B['mean_m']:.0f} m; target <= {tg['mean_m']:.0f} m: "
+                   + ("met" if ok else f"MISSED by {B['mean_m'] - tg['mean_m']:.0f} m"))
+    extra = sorted({t for _m2, t in B["failsafes"]} - {t for _m2, t in A["failsafes"]})
+    out.append("- failsafes / mode changes in the companion arm that alone did not have: " + (", ".join(extra) or "none"))
+    if A.get("healthy_mean_m") and B.get("healthy_mean_m") is not None:
+        r = B["healthy_mean_m"] / A["healthy_mean_m"]
+        out.append(f"- healthy phase: {B['healthy_mean_m']:.2f} m = {r:.2f}x alone; target <= 1.1x: "
+                   + ("met" if r <= 1.1 else f"MISSED by {r - 1.1:.2f}x"))
+    w = B.get("within_2hacc_frac")
+    if w is not None:
+        out.append(f"- fixes within 2x h_acc: {w:.0%}; target >= 90 %: " + ("met" if w >= 0.9 else f"MISSED by {0.9 - w:.0%}"))
+    j, h = B.get("return_jump_m"), B.get("last_hacc_m")
+    if j is not None:
+        out.append(f"- GNSS return: jump {j:.0f} m vs last stated h_acc {_m(h, ' m')}: "
+                   + ("met" if h is not None and j <= h else "MISSED" + (f" by {j - h:.0f} m" if h is not None else "")))
+    rc = B.get("reconverge_s")
+    out.append(f"- back to alone's healthy error: {_m(rc, ' s')}; target <= 30 s: "
+               + ("met" if rc is not None and rc <= 30 else "MISSED" + (f" by {rc - 30:.0f} s" if rc is not None else " (never)")))
+    return out
+
+
+def plot(a, flown: dict, png) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from replay.live import sitl_core as core
+
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    for name, c in (("alone", "tab:red"), ("companion", "tab:blue")):
+        if name not in flown:
+            continue
+        log = flown[name]["log"]
+        t, err = core.ekf_error(log)
+        on = log.marks.get("deny_on")
+        if on is None or len(t) == 0:
+            continue
+        ax.plot((t - on) / 60.0, err / 1000.0, color=c, lw=0.8, label=f"{name}: EKF3 error")
+    for name in flown:
+        log = flown[name]["log"]
+        if "deny_on" in log.marks and "deny_off" in log.marks:
+            ax.axvspan(0.0, (log.marks["deny_off"] - log.marks["deny_on"]) / 60.0, color="0.9", zorder=0)
+            break
+    ax.set_xlabel("minutes after GNSS was denied (shaded: denial)")
+    ax.set_ylabel("EKF horizontal error (km)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper left", fontsize=8)
+    ax.set_title(f"ArduPilot {a.vehicle} SITL over {a.map_path.name} from {a.origin}, seed {a.seed}, x{a.speedup:g}",
+                 fontsize=10)
+    fig.tight_layout()
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
