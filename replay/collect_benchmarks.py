@@ -1,9 +1,11 @@
-"""Assemble BENCHMARKS.md from the measured tables under replay/results/ (each written by its benchmark).
+"""Assemble BENCHMARKS.md from the measured tables under replay/results/ (each written by its benchmark), with a
+one-page summary at the top (replay/benchmark_summary.py).
 
     .venv/bin/python -m replay.collect_benchmarks
 
 Every section keeps the command that produced it; this script only concatenates, shifts headings one
-level down and makes image links relative to the repository root. It measures nothing itself.
+level down, makes image links relative to the repository root and reads each section's headline into the summary.
+It measures nothing itself.
 """
 
 from __future__ import annotations
@@ -11,6 +13,8 @@ from __future__ import annotations
 import argparse
 import re
 from pathlib import Path
+
+from replay import benchmark_summary
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "replay" / "results"
@@ -28,24 +32,30 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     files = [RESULTS / n for n in ORDER if (RESULTS / n).exists()]
     files += sorted(p for p in RESULTS.glob("*.md") if p not in files)
-    parts = [
+    head = [
         "# Benchmarks\n",
         "Measured numbers only. Each section below was produced by the command it names (run from the "
         "repository root on this project's 2-core machine) and copied here by "
-        "`python -m replay.collect_benchmarks`. Real data come from `../shared`.\n",
+        "`python -m replay.collect_benchmarks`, which also writes the summary from them. Real data come from "
+        "`../shared`.\n",
     ]
-    parts += [f"- [{_title(p)}](#{_anchor(_title(p))})" for p in files]
-    parts.append("")
+    body = []
     for p in files:
         text = p.read_text()
         text = re.sub(r"^(#+) ", lambda m: "#" + m.group(1) + " ", text, flags=re.M)
         text = re.sub(r"\]\((?!https?:|replay/|/|#)([^)]+\.png)\)", r"](replay/results/\1)", text)
-        parts.append(text.rstrip() + "\n")
+        body.append(text.rstrip() + "\n")
     pngs = sorted(RESULTS.glob("*.png"))
     if pngs:
-        parts.append("## Plots\n")
-        parts += [f"- [{p.stem}](replay/results/{p.name})" for p in pngs]
-        parts.append("")
+        body.append("## Plots\n")
+        body += [f"- [{p.stem}](replay/results/{p.name})" for p in pngs]
+        body.append("")
+    # each section's anchor: its first heading's, counted over the whole document (the summary's own heading first)
+    seen: dict[str, int] = {}
+    benchmark_summary.anchors("# Benchmarks\n## Summary\n", seen)
+    anchor = {p: benchmark_summary.anchors(part, seen)[0] for p, part in zip(files, body)}
+    summary = benchmark_summary.summary(files, _title, anchor.__getitem__, lambda p: _plots(p, files, pngs))
+    parts = head + [summary] + body
     text = "\n".join(parts)
     if args.check:
         current = (ROOT / "BENCHMARKS.md").read_text() if (ROOT / "BENCHMARKS.md").exists() else ""
@@ -62,8 +72,12 @@ def _title(p: Path) -> str:
     return p.stem
 
 
-def _anchor(title: str) -> str:
-    return re.sub(r"[^a-z0-9 _-]", "", title.lower()).replace(" ", "-")
+def _plots(p: Path, files: list[Path], pngs: list[Path]) -> list[Path]:
+    """The plots of a results file: those named after it and not after a longer-named one."""
+    def owner(png: Path) -> Path | None:
+        names = [f for f in files if png.stem == f.stem or png.stem.startswith(f.stem + "_")]
+        return max(names, key=lambda f: len(f.stem)) if names else None
+    return [q for q in pngs if owner(q) == p]
 
 
 if __name__ == "__main__":

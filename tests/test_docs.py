@@ -13,6 +13,8 @@ from __future__ import annotations
 import ast
 import io
 import re
+import subprocess
+import sys
 import tokenize
 from pathlib import Path
 
@@ -31,11 +33,11 @@ def doc_files() -> list[Path]:
     return [ROOT / "README.md", ROOT / "BENCHMARKS.md", *sorted((ROOT / "docs").rglob("*.md"))]
 
 
-def github_anchors(markdown: str) -> set[str]:
+def github_anchors(markdown: str) -> dict[str, str]:
     """The anchors GitHub gives the headings of a markdown text (lower case, punctuation dropped, spaces to '-',
-    a repeated one numbered -1, -2, ...)."""
+    a repeated one numbered -1, -2, ...), each with its heading's text."""
     seen: dict[str, int] = {}
-    out = set()
+    out = {}
     for line in _FENCE.sub("", markdown).splitlines():
         m = re.match(r"^#{1,6} +(.*?)\s*#*\s*$", line)
         if not m:
@@ -44,7 +46,7 @@ def github_anchors(markdown: str) -> set[str]:
         slug = re.sub(r"[^\w\- ]", "", text.lower()).replace(" ", "-")
         n = seen.get(slug, 0)
         seen[slug] = n + 1
-        out.add(slug if n == 0 else f"{slug}-{n}")
+        out[slug if n == 0 else f"{slug}-{n}"] = text
     return out
 
 
@@ -74,7 +76,7 @@ def test_links_resolve(path: Path):
 
 def test_anchor_rules():
     anchors = github_anchors("# A: b (`c` + `d`), 8 m/s\n## Plots\n## Plots\n```\n# not a heading\n```\n")
-    assert anchors == {"a-b-c--d-8-ms", "plots", "plots-1"}
+    assert set(anchors) == {"a-b-c--d-8-ms", "plots", "plots-1"}
 
 
 def test_readme_is_a_front_page():
@@ -94,6 +96,38 @@ STALE = re.compile(r"\bwas \d|\bwere \d|\bnot rerun\b|\bpredate|\bbefore (?:that
 def test_docs_are_current(path: Path):
     """README and the topic pages state what is true now (history belongs to docs/decisions/, git and CHANGELOG)."""
     assert [line for line in path.read_text().splitlines() if STALE.search(line)] == []
+
+
+def test_benchmarks_open_with_a_current_summary():
+    """BENCHMARKS.md is what `python -m replay.collect_benchmarks` writes from replay/results/ now; its summary comes
+    first, has one row per results file, each linking the section of that title, and every headline was found."""
+    from replay import benchmark_summary, collect_benchmarks
+
+    text = (ROOT / "BENCHMARKS.md").read_text()
+    check = subprocess.run([sys.executable, "-m", "replay.collect_benchmarks", "--check"], cwd=ROOT,
+                           capture_output=True, text=True, timeout=120)
+    assert check.returncode == 0, "rerun `python -m replay.collect_benchmarks`: " + check.stdout + check.stderr
+    summary = text.split("\n## ")[1]
+    assert summary.startswith("Summary\n")
+    assert benchmark_summary.MISSING not in summary
+    heading_of = github_anchors(text)
+    rows = re.findall(r"^\| \[(.+?)\]\(#([^)]+)\) \|", summary, re.M)
+    results = sorted(p.name for p in collect_benchmarks.RESULTS.glob("*.md"))
+    assert len(rows) == len(results) and len(summary.splitlines()) < 60
+    for title, anchor in rows:
+        assert heading_of.get(anchor, "").replace("`", "") == title.replace("`", ""), (title, anchor)
+
+
+def test_the_summary_reads_a_headline_and_its_verdict(tmp_path):
+    from replay.benchmark_summary import MISSING, Headline, _install, headline
+
+    text = ("# Install\n\n## Core install\n\nTargets: <= 350 MB, `companion --version` <= 0.3 s CPU.\n\n"
+            "| install | packages MB | `companion --version` CPU s |\n|---|---|---|\n"
+            "| ./dev.sh setup (dialects in use) | 360 | 0.06 |\n")
+    assert _install(text) == Headline("core install 360 MB; `companion --version` 0.06 s CPU", "**not met**")
+    changed = tmp_path / "install.md"  # the results file's format changed: the summary says so
+    changed.write_text(text.replace("packages MB", "MB"))
+    assert headline(changed).text.startswith(MISSING)
 
 
 def _docstrings(tree: ast.AST):
