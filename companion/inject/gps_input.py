@@ -17,8 +17,9 @@ Field by field (what ArduPilot's AP_GPS_MAV driver and EKF3 do with it, observed
   ``satellites`` (>= 6, which ArduPilot requires) with a 2D/3D fix, 0 without.
 * ``time_week``/``time_week_ms``: GPS time of the solution from the receiver's own GPS time when the
   source gives it (``GnssFix.gps_week``/``gps_tow_s``), else from the autopilot's SYSTEM_TIME (UTC + leap
-  seconds), 0/0 while unknown (ArduPilot then uses its own arrival time). ``time_usec``: the autopilot's
-  boot time of the solution (microseconds since boot).
+  seconds); while neither is known the message goes out as no fix with 0/0 (a fix is never sent without its
+  time). ``time_usec``: the autopilot's boot time of the solution (microseconds since boot); a state from before
+  the autopilot's last reboot, or one the link saw a reboot after, is never sent.
 * ``yaw``: 0 (not available) unless ``send_yaw`` and the state has a heading (then cdeg, 36000 = north).
 * ``gps_id``: the GPS instance fed (0 for GPS1_TYPE = 14, 1 for GPS2_TYPE = 14).
 
@@ -26,7 +27,8 @@ Integrity: a state with a non-finite or out-of-range field, lat = lon = 0, an im
 non-positive or non-finite sigma, a field that does not fit its wire type, or a time not after the previous
 one (or ahead of every input) is never sent; nor a *stale* state (more than ``max_lag_s`` behind the newest sensor event: a navigator
 catching up after a gap would otherwise emit a burst of old positions), nor one that disagrees with the real
-receiver. Every state is checked against the receiver's 3D fix nearest to it in time (newer or older, within
+receiver, nor one older than ``autopilot_lag_s`` + ``max_lag_s`` on the autopilot's clock as the link shows it
+(:mod:`companion.inject.link_clock`: after a silent link the backlog arrives at once, new bytes of old states). Every state is checked against the receiver's 3D fix nearest to it in time (newer or older, within
 ``consistency_window_s``), carried to the state's epoch at the fix's velocity (the state's when the fix has
 none): horizontal distance d with d^2 > ``consistency_chi2`` (sigma_state^2 + sigma_receiver^2) +
 (``receiver_lag_s`` |v|)^2 is a disagreement (chi-square 2 dof 99.9 % = 13.816); so is a horizontal velocity
@@ -47,7 +49,6 @@ the trust monitor (companion.nav.trust) judged that solution fit at the moment o
 from __future__ import annotations
 
 import math
-import struct
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
@@ -71,6 +72,8 @@ from companion.mavlink.gps_input import (  # noqa: F401 - the wire encoding, re-
     encode_gps_input,
     gps_week_from_unix,
 )
+from companion.inject.checks import encoded, invalid
+from companion.inject.link_clock import LinkClock
 from companion.inject.receiver_check import ReceiverCrossCheck
 from companion.nav.frame import LocalFrame
 from companion.nav.outputs import MeasurementUpdate, ModeChange, NavigatorReset
@@ -245,6 +248,13 @@ class Injector(Stage):
         #: runtime sets both); a state built from input that arrived more than max_lag_s ago is never sent
         self.arrival_clock: Callable[[], float] | None = None
         self.arrival_s: float | None = None
+        #: live: the vehicle's time now, from the arrivals (a burst of old messages is old, however new its bytes)
+        self.link_clock = LinkClock()
+        #: live: how many autopilot reboots the link has seen (the runtime sets it); a message built before one the
+        #: link has seen but this stage has not yet been told of is on the previous boot's clock: never sent
+        self.link_reboots: Callable[[], int] | None = None
+        self.reboots = 0
+        self._boot_start_t = -math.inf  # vehicle time the autopilot's current boot began (its last reboot)
         self.dropped: Counter[str] = Counter()
         self.sent = 0
         self.built = 0
@@ -276,6 +286,8 @@ class Injector(Stage):
             return []
         if isinstance(item, (ImuSample, GnssFix, Attitude)) and _finite(item.t_s):
             self._newest_input_t = max(self._newest_input_t, item.t_s)
+            if self.arrival_s is not None and not isinstance(item, GnssFix):  # (a fix is stamped when it was solved)
+                self.link_clock.observe(item.t_s, self.arrival_s)
         verdicts: list[Event] = []
         if self.trust is not None and isinstance(item, _TRUST_INPUTS):
             verdicts = self.trust.observe(item)
@@ -296,9 +308,12 @@ class Injector(Stage):
             # boot time restarts: keep the offset so time_usec is the autopilot's new boot time; forget
             # UTC (SYSTEM_TIME is re-sent) and the time order of states (the navigator restarts its clock)
             self._boot_offset_s = item.t_s - item.new_boot_s
+            self._boot_start_t = item.t_s - item.new_boot_s
             self._utc = None
             self._gnss_time = None
             self._last_out_t = None
+            self.link_clock.reset()
+            self.reboots += 1
             return [InjectorState(item.t_s, self._active, "autopilot rebooted")]
         return []
 
@@ -409,7 +424,7 @@ class Injector(Stage):
         if self._last_out_t is not None and tgt - self._last_out_t < RATE_GAP_FRACTION / c.rate_hz:
             return out
         alt_ignored = self._alt_ignored(s)
-        why = _invalid(s, c, check_alt=not alt_ignored)
+        why = invalid(s, c, check_alt=not alt_ignored)
         if why:
             return out + self._drop(s.t_s, why)
         carried_s = tgt - s.t_s
@@ -418,18 +433,28 @@ class Injector(Stage):
         if why:
             return out + self._drop(s.t_s, why)
         if self.arrival_clock is not None and self.arrival_s is not None:
-            waited = self.arrival_clock() - self.arrival_s
-            if waited > c.max_lag_s:
+            now_s = self.arrival_clock()
+            if now_s - self.arrival_s > c.max_lag_s:
                 return out + self._drop(s.t_s, f"stale: its input arrived more than {c.max_lag_s:g} s ago")
+            vehicle_now = self.link_clock.vehicle_now(now_s)
+            if vehicle_now is not None and vehicle_now - s.t_s - c.autopilot_lag_s > c.max_lag_s:
+                return out + self._drop(s.t_s, f"stale: older than its stated lag by more than {c.max_lag_s:g} s "
+                                               "on the autopilot's clock (old messages delivered late)")
+        if s.t_s <= self._boot_start_t:
+            return out + self._drop(s.t_s, "from before the autopilot's last reboot")
         rec = self._record(s, alt_ignored, carried_s)
-        msg, why = _encoded(rec)  # every field against its wire type, in every mode: a record is what would be sent
+        if rec.time_boot_us <= 0:
+            return out + self._drop(s.t_s, "no boot time (before the autopilot's boot)")
+        msg, why = encoded(rec)  # every field against its wire type, in every mode: a record is what would be sent
         if why:
             return out + self._drop(s.t_s, f"not encodable ({why})")
         self._last_out_t = s.t_s
         self.built += 1
         self.fix_types[rec.fix_type] += 1
         if c.mode == "inject" and self.sender is not None:
-            if self.sender(msg):
+            if self.link_reboots is not None and self.link_reboots() != self.reboots:
+                self.dropped["built on the autopilot's previous boot (it rebooted meanwhile)"] += 1
+            elif self.sender(msg):
                 self.sent += 1
                 rec = _replace_sent(rec)
                 if self.on_sent is not None:
@@ -509,6 +534,8 @@ class Injector(Stage):
         if not 0 <= week <= MAX_GPS_WEEK:
             self.dropped["GPS week beyond uint16: time sent as unknown (0/0)"] += 1
             week = week_ms = 0
+        if week == 0 and fix >= FixType.FIX_2D:  # a fix is never sent without its time (ArduPilot would take arrival)
+            fix, why = int(FixType.NO_FIX), "GPS time not known yet: no fix without a time"
         boot_s = max(0.0, s.t_s - self._boot_offset_s)
         yaw = 0
         if c.send_yaw and _finite(s.yaw_rad):
@@ -561,39 +588,3 @@ def _replace(obj: Any, **changes: Any) -> Any:
     if names is None or not changes.keys() <= _NAME_SETS[cls]:  # (what replace itself refuses, it says why)
         return replace(obj, **changes)
     return cls(*[changes[n] if n in changes else getattr(obj, n) for n in names])
-
-
-def _encoded(rec: GpsInputRecord) -> tuple[Any, str]:
-    """(pymavlink message, "") for a record whose every field fits its wire type, else (None, the first that does not)."""
-    try:
-        msg = encode_gps_input(rec)
-    except (ValueError, TypeError, OverflowError) as err:
-        return None, str(err)
-    fmt = msg.unpacker.format.lstrip("<")
-    for code, name in zip(fmt, msg.ordered_fieldnames, strict=True):
-        try:
-            struct.pack("<" + code, getattr(msg, name))
-        except (struct.error, OverflowError, TypeError):
-            return None, f"{name} does not fit its wire type"
-    return msg, ""
-
-
-def _invalid(s: FusedState, c: InjectConfig, check_alt: bool = True) -> str:
-    """Why a fused state cannot be stood behind ("" when it can); check_alt False: its altitude and vertical
-    velocity are not sent, so neither is judged."""
-    if not _finite(s.lat_deg, s.lon_deg, s.alt_msl_m):
-        return "non-finite position"
-    if not (-90.0 <= s.lat_deg <= 90.0 and -180.0 <= s.lon_deg <= 180.0):
-        return "lat/lon out of range"
-    if units.degE7_from_deg(s.lat_deg) == 0 and units.degE7_from_deg(s.lon_deg) == 0:
-        return "lat = lon = 0"
-    if check_alt and not -1000.0 <= s.alt_msl_m <= 20000.0:
-        return "altitude out of range"
-    if not _finite(s.vel_n_mps, s.vel_e_mps, s.vel_d_mps):
-        return "non-finite velocity"
-    vd = s.vel_d_mps if check_alt else 0.0  # an ignored vertical channel is not judged
-    if math.hypot(s.vel_n_mps, s.vel_e_mps, vd) > c.max_speed_mps:
-        return f"speed above {c.max_speed_mps:g} m/s"
-    if not (_finite(s.sigma_h_m, s.sigma_v_m) and s.sigma_h_m > 0 and s.sigma_v_m > 0):
-        return "no valid covariance"
-    return ""

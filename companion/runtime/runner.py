@@ -100,6 +100,8 @@ class Runtime:
         self.injector.on_sent = self._on_sent
         # freshness judged by when the input's bytes arrived, with a margin for the way out after the check
         self.injector.arrival_clock = lambda: time.perf_counter() + DELIVERY_MARGIN_S
+        # the reader thread sees a reboot before the loop does: nothing built on the previous boot leaves after it
+        self.injector.link_reboots = lambda: self.link.decoder.clock.reboots
         # what the pipeline records waits until the batch is done: the GPS_INPUT goes out before the disk work
         self.deferred = DeferredSink(sink) if sink is not None else None
         self.pipeline: Pipeline = build_pipeline(self.deferred, nav_config=nav_config,

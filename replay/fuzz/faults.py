@@ -2,13 +2,14 @@
 
 Each :class:`Fault` starts ``at_s`` after the first fresh GPS_INPUT and lasts ``duration_s``: garbage bytes, frames
 with a bad CRC, MAVLink 1 frames among MAVLink 2, edited fields (extreme, NaN, a time far ahead or behind), a burst
-of thousands of RAW_IMU a second, a SIGTERM.
+of thousands of RAW_IMU a second, a silent link whose backlog then arrives at once, an autopilot reboot, a SIGTERM.
 """
 
 from __future__ import annotations
 
 import copy
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -31,6 +32,8 @@ class FaultPeer(Protocol):
     def newest(self, mtype: str) -> Any: ...
 
     def sigterm(self) -> None: ...
+
+    def reboot(self) -> None: ...
 
 
 @dataclass
@@ -55,6 +58,9 @@ class Fault:
 
     def transform(self, peer: FaultPeer, frame: bytes, msg) -> bytes:  # a stream frame while active
         return frame
+
+    def end(self, peer: FaultPeer, now: float) -> None:  # once, when its duration is over
+        pass
 
 
 class Garbage(Fault):
@@ -173,3 +179,36 @@ class Sigterm(Fault):
 
     def begin(self, peer, now):
         peer.sigterm()
+
+
+class Silence(Fault):
+    """The link goes silent for ``duration_s`` (a radio fade: the companion declares it lost and reconnects), then
+    everything held back arrives at once, oldest first, before the live stream goes on: a burst of seconds-old
+    messages whose bytes are new."""
+
+    def __init__(self, at_s, duration_s=4.0):
+        super().__init__(at_s, duration_s)
+        self._held: list[bytes] = []
+        self.held = 0
+        self.burst_mono: float | None = None  # when the backlog went out (time.monotonic)
+
+    def transform(self, peer, frame, msg):
+        self._held.append(frame)
+        self.held += 1
+        return b""
+
+    def end(self, peer, now):
+        peer.write(b"".join(self._held))
+        self._held.clear()
+        self.burst_mono = time.monotonic()
+
+
+class Reboot(Fault):
+    """The autopilot reboots: silent for ``duration_s`` (its start-up), then its boot clock starts again near 0
+    (every later message's boot time moves back by what it had reached) while the vehicle goes on."""
+
+    def transform(self, peer, frame, msg):
+        return b""  # what it would have sent while restarting is never sent
+
+    def end(self, peer, now):
+        peer.reboot()

@@ -22,6 +22,7 @@ GPS_INPUT), each with a generous limit; never a fixed sleep.
 from __future__ import annotations
 
 import bisect
+import copy
 import math
 import os
 import select
@@ -38,7 +39,9 @@ from pathlib import Path
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from replay.fuzz.faults import BadCrc, Burst, Fault, Garbage, Inject, Mavlink1, Sigterm  # noqa: F401 (re-exported)
+from replay.fuzz.faults import (  # noqa: F401 (re-exported)
+    BadCrc, Burst, Fault, Garbage, Inject, Mavlink1, Reboot, Sigterm, Silence,
+)
 from replay.fuzz.properties import TRACEBACK_MARKS, check_mcap
 
 CLI = [sys.executable, "-m", "companion.cli"]
@@ -95,6 +98,8 @@ class GpsInputSeen:
     h_acc_m: float
     err_h_m: float | None
     lag_s: float | None
+    time_week: int = 0
+    ahead: bool = False  # stamped later than anything the autopilot sent on its current boot (an older boot's time)
 
 
 class Peer:
@@ -125,8 +130,10 @@ class Peer:
         self._rx.robust_parsing = True
         self._packers: dict[tuple[int, int], mavlink2.MAVLink] = {}
         self._newest: dict[str, object] = {}
-        self._sent_boot: list[float] = []  # boot times of the stream messages sent, in order ...
+        self._sent_boot: list[float] = []  # boot times of the stream messages sent on the current boot, in order ...
         self._sent_mono: list[float] = []  # ... and when
+        self.boot_shift_s = 0.0  # the flight's boot time minus the autopilot's (grows at each reboot)
+        self.reboot_mono: list[float] = []  # when the autopilot came back from each reboot
         self.gps_inputs: list[GpsInputSeen] = []
         self.heartbeats: list[float] = []
         self.received: dict[str, int] = {}
@@ -169,6 +176,38 @@ class Peer:
 
     def newest(self, mtype: str):
         return self._newest.get(mtype)
+
+    def reboot(self) -> None:
+        """The boot clock starts again: later messages are stamped from 1 s on (the flight itself goes on)."""
+        nxt = next((it.boot_s for it in self.items[self._k:] if it.boot_s is not None), None)
+        with self._lock:
+            self.boot_shift_s = (nxt - 1.0) if nxt is not None else self.boot_shift_s
+            self._sent_boot, self._sent_mono = [], []
+            self.reboot_mono.append(time.monotonic())
+
+    def _on_boot(self, msg):
+        """``msg`` stamped on the autopilot's current boot (a copy when it has rebooted)."""
+        if not self.boot_shift_s:
+            return msg
+        msg = copy.copy(msg)
+        if hasattr(msg, "time_boot_ms"):
+            msg.time_boot_ms = max(0, int(round(msg.time_boot_ms - self.boot_shift_s * 1e3)))
+        elif getattr(msg, "time_usec", 0) and msg.time_usec < 1e15:
+            msg.time_usec = max(0, int(round(msg.time_usec - self.boot_shift_s * 1e6)))
+        return msg
+
+    def _accept_again(self) -> None:
+        """TCP: the companion closed the connection (it declared the link lost) and connects again."""
+        if self.transport != "tcp" or self.sock is not None or self._listen is None:
+            return
+        r, _, _ = select.select([self._listen], [], [], 0)
+        if r:
+            sock, _ = self._listen.accept()
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            if self._reader is not None:
+                self._reader.join(5)
+            self.sock = sock
+            self._start_reader()
 
     def sigterm(self) -> None:
         if self.companion is not None and self.sigterm_mono is None:
@@ -249,18 +288,22 @@ class Peer:
 
         d = decode_gps_input(m)
         boot = d["time_boot_us"] * 1e-6
-        tr = self.playback.truth(boot)
+        with self._lock:
+            shift = self.boot_shift_s
+        tr = self.playback.truth(boot + shift)
         err = None
         if tr is not None:
             ned = LocalFrame(tr[0], tr[1], tr[2]).to_ned_m(d["lat_deg"], d["lon_deg"], d["alt_msl_m"])
             err = float(math.hypot(ned[0], ned[1]))
         lag = None
-        # the input it was built on: the first sent at or after the state's epoch + the autopilot's lag
+        # the input it was built on: the first sent at or after the state's epoch + the autopilot's lag (on the
+        # autopilot's current boot: a time later than anything it sent is another boot's, or made up)
         with self._lock:
             i = bisect.bisect_left(self._sent_boot, boot + self.epoch_lag_s - 1e-6)
             if i < len(self._sent_boot):
                 lag = now - self._sent_mono[i]
-        self.gps_inputs.append(GpsInputSeen(now, boot, d["fix_type"], d["h_acc_m"], err, lag))
+            ahead = bool(self._sent_boot) and i == len(self._sent_boot) and boot > self._sent_boot[-1] + 0.05
+        self.gps_inputs.append(GpsInputSeen(now, boot, d["fix_type"], d["h_acc_m"], err, lag, d["time_week"], ahead))
 
     # -- playing ------------------------------------------------------------------------------
     def play(self, until: Callable[[float], bool], faults: list[Fault] = (), t_faults0: float | None = None) -> None:
@@ -270,6 +313,7 @@ class Peer:
             now = self.play_now()
             if until(now) or self._k >= len(self.items):
                 return
+            self._accept_again()
             active = []
             for f in faults:
                 if f.done or t_faults0 is None:
@@ -285,18 +329,23 @@ class Peer:
                         f.step(self, now)
                     else:
                         f.done = True
+                        f.end(self, now)
             out = []
             while self._k < len(self.items) and self.items[self._k].play_s <= now:
                 it = self.items[self._k]
                 self._k += 1
-                frame = self.pack(it.msg, it.src)
+                msg = self._on_boot(it.msg)
+                frame = self.pack(msg, it.src)
                 for f in active:
-                    frame = f.transform(self, frame, it.msg)
-                out.append(frame)
-                self._newest[it.msg.get_type()] = it.msg
-                if it.boot_s is not None:
+                    frame = f.transform(self, frame, msg)
+                    if not frame:
+                        break
+                if frame:
+                    out.append(frame)
+                self._newest[msg.get_type()] = msg
+                if it.boot_s is not None:  # (when the autopilot stamped it: held back or not, it is that old)
                     with self._lock:
-                        self._sent_boot.append(it.boot_s)
+                        self._sent_boot.append(it.boot_s - self.boot_shift_s)
                         self._sent_mono.append(time.monotonic())
             if out:
                 self.write(b"".join(out))
@@ -362,6 +411,8 @@ class LiveResult:
     gps_inputs: int = 0
     stale: int = 0
     max_lag_s: float = 0.0
+    unstamped: int = 0  # a 2D/3D fix with time_usec 0 or time_week 0
+    wrong_time: int = 0  # stamped later than anything the autopilot sent on its current boot
     inaccurate: int = 0
     max_err_ratio: float = 0.0
     fresh_after_faults: int = 0  # fresh GPS_INPUT in the quiet window after the last fault
@@ -434,6 +485,8 @@ def judge_live(res: LiveResult, peer: Peer, comp: Companion) -> None:
     lags = [g.lag_s for g in gi if g.lag_s is not None]
     res.max_lag_s = max(lags, default=0.0)
     res.stale = sum(1 for x in lags if x > MAX_LAG_S)
+    res.unstamped = sum(1 for g in gi if g.fix_type >= 2 and (g.boot_s == 0 or g.time_week == 0))
+    res.wrong_time = sum(1 for g in gi if g.ahead)
     ratios = [g.err_h_m / g.h_acc_m for g in gi if g.fix_type >= 3 and g.err_h_m is not None and g.h_acc_m > 0]
     res.max_err_ratio = max(ratios, default=0.0)
     res.inaccurate = sum(1 for r in ratios if r > ACCURACY_FACTOR)
@@ -455,6 +508,10 @@ def judge_live(res: LiveResult, peer: Peer, comp: Companion) -> None:
         v.append("traceback")
     if res.stale:
         v.append("stale")
+    if res.unstamped:
+        v.append("unstamped")
+    if res.wrong_time:
+        v.append("wrong_time")
     if res.inaccurate:
         v.append("inaccurate")
     if res.mcap:
@@ -483,6 +540,8 @@ def scenarios() -> dict[str, Callable[[], list[Fault]]]:
         "burst_14k": lambda: [Burst(1.0, 3.0)],
         "burst_40k": lambda: [Burst(1.0, 3.0, rate=40_000)],
         "sigterm_in_burst_40k": lambda: [Burst(1.0, 6.0, rate=40_000), Sigterm(3.5)],
+        "silence_then_burst": lambda: [Silence(1.0, 4.0)],
+        "reboot_mid_send": lambda: [Reboot(1.0, 1.5)],
     }
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from replay.fuzz.link import MAX_LAG_S, Burst, Companion, Inject, Peer, Sigterm, run_scenario
+from replay.fuzz.link import MAX_LAG_S, Burst, Companion, Inject, Peer, Reboot, Sigterm, Silence, run_scenario
 
 XFAIL = dict(strict=True, raises=AssertionError)
 BURST_HZ = 40_000
@@ -79,6 +79,37 @@ def test_no_stale_gps_input_under_burst(tmp_path):
     assert not late, (f"{len(late)} GPS_INPUT more than {MAX_LAG_S} s after their input arrived, the worst "
                       f"{max(g.lag_s for g in late):.1f} s (fix_type {max(late, key=lambda g: g.lag_s).fix_type})")
     assert res.fresh_after_faults > 0, _summary(res)
+
+
+def _unsafe(peer):
+    """GPS_INPUT the autopilot must not get: older than its stated lag by more than max_lag_s on the autopilot's
+    clock, stamped later than anything of its current boot (an older boot's time), or a fix without a time."""
+    return [g for g in peer.gps_inputs if (g.lag_s is not None and g.lag_s > MAX_LAG_S) or g.ahead
+            or (g.fix_type >= 2 and (g.boot_s == 0 or g.time_week == 0))]
+
+
+@pytest.mark.parametrize("transport", ["tcp", "udp"])
+def test_silence_then_burst_sends_nothing_stale(tmp_path, transport):
+    """4 s of silence (the companion declares the link lost and reconnects), then the held-back messages at once."""
+    silence = Silence(1.0, 4.0)
+    res, peer, comp = _run("silence_then_burst", [silence], tmp_path, transport)
+    assert silence.held > 100 and silence.burst_mono is not None, silence.held
+    assert "link lost" in comp.stderr, comp.stderr[-600:]
+    bad = _unsafe(peer)
+    assert not bad, f"{len(bad)} unsafe GPS_INPUT, the first {bad[0]}; {_summary(res)}"
+    fresh = peer.fresh_since(silence.burst_mono)
+    assert fresh and fresh[0].recv_mono - silence.burst_mono < 2.0, _summary(res)  # fresh fixes come back at once
+    assert res.exit_code == 0 and not res.traceback and not res.mcap, _summary(res)
+
+
+def test_reboot_mid_send_keeps_every_gps_input_on_the_current_boot(tmp_path):
+    res, peer, comp = _run("reboot_mid_send", [Reboot(1.0, 1.5)], tmp_path)
+    assert peer.reboot_mono and "link reboot" in comp.stderr, comp.stderr[-600:]
+    bad = _unsafe(peer)
+    assert not bad, f"{len(bad)} unsafe GPS_INPUT, the first {bad[0]}; {_summary(res)}"
+    after = [g for g in peer.gps_inputs if g.recv_mono > peer.reboot_mono[0]]
+    assert after and max(g.boot_s for g in after) < 30.0  # on the new boot's clock (it restarted at 1 s)
+    assert res.fresh_after_faults > 0 and res.exit_code == 0 and not res.traceback, _summary(res)
 
 
 def test_system_time_4e16_in_inject_mode(tmp_path):

@@ -39,8 +39,8 @@ def fix(t_s, fix_type=3, instance=0) -> GnssFix:
     has = fix_type >= 2
     return GnssFix(
         t_s, fix_type, -35.3632 if has else None, 149.1652 if has else None, 600.0 if has else None, None, None, None,
-        None, None, 10, 0.8, 1.2, None, None, None, None, None, instance,
-    )
+        None, None, 10, 0.8, 1.2, None, None, None, 2350, 100_000.0 + t_s, instance,
+    )  # (the receiver's own GPS time: a fix is never sent without one)
 
 
 def tick(inj, st, lag_s=0.2):
@@ -110,6 +110,7 @@ def test_yaw_when_enabled_north_is_36000():
 )
 def test_fix_type_follows_covariance_bounds(sigma_h, sigma_v, expect):
     inj = Injector(InjectConfig(mode="shadow", activate="always", max_h_acc_3d_m=10, max_v_acc_3d_m=20, max_h_acc_2d_m=50))
+    inj.process(SystemTime(t_s=5.0, unix_time_s=calendar.timegm((2025, 3, 15, 1, 30, 0))))
     (rec,) = inj.process(state(sigma_h=sigma_h, sigma_v=sigma_v))
     assert rec.fix_type == expect and not rec.sent and rec.mode == "shadow"
     assert rec.h_acc_m == sigma_h and rec.v_acc_m == sigma_v  # accuracies are the filter's, not constants

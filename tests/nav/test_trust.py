@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from companion.events import GnssFix
+from companion.events import GnssFix, SystemTime
 from companion.inject.gps_input import GpsInputRecord, InjectConfig, Injector, InjectorState
 from companion.nav.navigator import Navigator, NavigatorConfig
 from companion.nav.outputs import FusedState, MeasurementUpdate, ModeChange, NavigatorReset
@@ -137,6 +137,7 @@ def _takeover_flight(pre_laps: int, hover_s: float, seed: int = 3, deny_s: float
     pipe = Pipeline(stages=[Navigator(NavigatorConfig()),
                             Injector(InjectConfig(mode="shadow", activate="takeover", backup_fix_when_armed=False))],
                     sink=sink)
+    pipe.process(SystemTime(t_s=0.0, unix_time_s=1.74e9))  # (the vehicle's UTC: a fix is never sent without a time)
     for e in flight_events(sim, deny_s=(t0, t0 + deny_s)):
         pipe.process(e)
     pipe.finish()
