@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.cli import REPLAY_FLUSH_INTERVAL_S
+from companion.replay_common import REPLAY_FLUSH_INTERVAL_S
 from companion.pipeline.core import build_pipeline, run_source
 from companion.record import Recorder
 from companion.shared_data import shared_logs_dir
