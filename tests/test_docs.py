@@ -86,6 +86,55 @@ def test_readme_is_a_front_page():
     assert "./dev.sh replay" in top and "./dev.sh test" in top
 
 
+def _section_text(markdown: str, anchor: str) -> str:
+    """The text under the heading with this anchor, up to the next heading of its level or higher."""
+    lines = _FENCE.sub("", markdown).splitlines()
+    seen: dict[str, int] = {}
+    start = level = None
+    for i, line in enumerate(lines):
+        m = re.match(r"^(#{1,6}) +(.*?)\s*#*\s*$", line)
+        if not m:
+            continue
+        if start is not None and len(m.group(1)) <= level:
+            return "\n".join(lines[start:i])
+        slug = re.sub(r"[^\w\- ]", "", m.group(2).lower()).replace(" ", "-")
+        n = seen.get(slug, 0)
+        seen[slug] = n + 1
+        if start is None and (slug if n == 0 else f"{slug}-{n}") == anchor:
+            start, level = i, len(m.group(1))
+    assert start is not None, anchor
+    return "\n".join(lines[start:])
+
+
+def _found(token: str, unit: str, numbers: list[float]) -> bool:
+    """A number as the README prints it (its decimals, km for metres) is one of the section's."""
+    x = float(token)
+    tol = 0.5 * 10 ** -len(token.partition(".")[2]) + 1e-9
+    scale = 1000.0 if unit == "km" else 1.0
+    return any(abs(y - x) <= tol or abs(y / scale - x) <= tol for y in numbers)
+
+
+def test_readme_results_are_those_of_the_linked_sections():
+    """Every number in the README's results table (the measured column) is in the BENCHMARKS.md section its row
+    links: a rerun benchmark whose numbers moved makes the README say so here."""
+    readme, bench = (ROOT / "README.md").read_text(), (ROOT / "BENCHMARKS.md").read_text()
+    table = readme.split("\n## Results")[1].split("\n## ")[0]
+    rows = [_cells(line) for line in table.splitlines() if line.startswith("| ") and "BENCHMARKS.md#" in line]
+    assert len(rows) >= 5
+    missing = []
+    for _what, measured, _target, links_cell in rows:
+        anchor = re.search(r"BENCHMARKS\.md#([^)]+)\)", links_cell).group(1)
+        numbers = [float(n) for n in re.findall(r"\d+(?:\.\d+)?", _section_text(bench, anchor).replace(",", ""))]
+        for m in re.finditer(r"(\d+(?:\.\d+)?)\s*(km)?", measured.replace("`companion --version`", "")):
+            if not _found(m.group(1), m.group(2) or "", numbers):
+                missing.append(f"{m.group(0)} not in #{anchor}")
+    assert missing == []
+
+
+def _cells(line: str) -> list[str]:
+    return [c.strip() for c in line.strip().strip("|").split("|")]
+
+
 #: a sentence about the past, not the present: how a number used to be, or a result that no longer matches the code
 STALE = re.compile(r"\bwas \d|\bwere \d|\bnot rerun\b|\bpredate|\bbefore (?:that|this|the) change\b|\bmeasured on 20\d\d-",
                    re.I)
