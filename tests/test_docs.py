@@ -135,6 +135,20 @@ def _cells(line: str) -> list[str]:
     return [c.strip() for c in line.strip().strip("|").split("|")]
 
 
+@pytest.mark.parametrize("path", sorted((ROOT / "docs" / "decisions").glob("*.md")), ids=lambda p: p.name)
+def test_decision_records_say_question_command_measured_chosen(path: Path):
+    """A decision record: its question, what was measured with the command that measures it, what was chosen; and
+    the code links it from the setting it decided."""
+    text = path.read_text()
+    assert re.match(r"\d{4}-[a-z0-9-]+\.md$", path.name) and text.startswith(f"# {path.name[:4]} ")
+    for heading in ("## The question", "## What was measured", "## What was chosen"):
+        assert f"\n{heading}" in text, heading
+    measured = text.split("## What was measured")[1].split("## What was chosen")[0]
+    assert "python -m " in measured or "pytest" in measured or "tests/" in measured, "no command"
+    code = "\n".join(p.read_text() for p in _code_files())
+    assert f"docs/decisions/{path.name[:4]}" in code, "not linked from companion/"
+
+
 #: a sentence about the past, not the present: how a number used to be, or a result that no longer matches the code
 STALE = re.compile(r"\bwas \d|\bwere \d|\bnot rerun\b|\bpredate|\bbefore (?:that|this|the) change\b|\bmeasured on 20\d\d-",
                    re.I)
