@@ -6,7 +6,8 @@ from __future__ import annotations
 import json
 
 #: a replay closes an MCAP chunk every 10 s of vehicle time (the live process: every second, for durability). The
-#: writer keeps an index entry per chunk until the file is finalised: 1 s chunks were 15 MiB of a 3 h replay's memory
+#: writer keeps an index entry per chunk until the file is finalised: with 1 s chunks that index holds 15 MiB of a 3 h
+#: replay's memory
 REPLAY_FLUSH_INTERVAL_S = 10.0
 
 

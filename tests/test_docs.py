@@ -156,7 +156,9 @@ def test_decision_records_say_question_command_measured_chosen(path: Path):
 
 
 #: a sentence about the past, not the present: how a number used to be, or a result that no longer matches the code
-STALE = re.compile(r"\bwas \d|\bwere \d|\bnot rerun\b|\bpredate|\bbefore (?:that|this|the) change\b|\bmeasured on 20\d\d-",
+#: a value's history: "was 789 m", "were 4.5 km" (a number with its unit; "the fix was 3D" is a state, not a history)
+_WAS = r"\b(?:was|were) \d[\d.,]*\s*(?:m|km|s|ms|us|%|mgal|m/s|mib|mb)(?![\w/])"
+STALE = re.compile(_WAS + r"|\bnot rerun\b|\bpredate|\bbefore (?:that|this|the) change\b|\bmeasured on 20\d\d-",
                    re.I)
 
 
@@ -225,7 +227,7 @@ NOTEBOOK = re.compile(
     r"^\s*\|.*\|.*\|"  # a markdown table row
     r"|\blog1\d\d\b|\bphoenix\b|\bdiaven\b"  # the shared logs by name
     r"|(?<!-)\bseeds? \d"  # (a command's --seed N is not a result)
-    r"|\bwas \d|\bnot rerun\b|\bpredate|\bbefore (?:that|this|the) change\b",
+    r"|" + _WAS + r"|\bnot rerun\b|\bpredate|\bbefore (?:that|this|the) change\b",
     re.I)
 
 
@@ -250,5 +252,6 @@ def test_notebook_pattern_catches_what_it_should():
     for text in ["| log | 8 s |", "RMSE on log172 2.1 m", "752 m mean (was 789 m)", "seed 8", "not rerun since",
                  "the numbers below predate it", "measured before that change"]:
         assert NOTEBOOK.search(text), text
-    for text in ["x | y", "the 2 s a SIGTERM may take", "rejected by the gate", "a map cell", "run --seed 1"]:
+    for text in ["x | y", "the 2 s a SIGTERM may take", "rejected by the gate", "a map cell", "run --seed 1",
+                 "while the fix was 3D"]:
         assert not NOTEBOOK.search(text), text
