@@ -64,11 +64,10 @@ def _local_rows(jobs: list[tuple], workers: int) -> Iterator[tuple[int, dict]]:
             yield i, replay_job(*args)
         return
     import concurrent.futures as cf
-    import multiprocessing as mp
 
-    # forkserver: a worker does not inherit the coordinator's threads (a progress bar's) or memory
-    ctx = mp.get_context("forkserver") if "forkserver" in mp.get_all_start_methods() else None
-    with cf.ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+    # the platform's start method (fork on Linux: the workers are this process's children, their CPU time in its
+    # rusage; the coordinator holds nothing large to copy)
+    with cf.ProcessPoolExecutor(workers) as pool:
         yield from _bounded(lambda args: pool.submit(replay_job, *args), jobs, 2 * workers,
                             lambda fs: cf.wait(fs, return_when=cf.FIRST_COMPLETED)[0], lambda f: f.result())
 
