@@ -44,8 +44,9 @@ def _default_out(name: str) -> Path:
     return Path("out") / f"{name}.mcap"
 
 
-async def _drive(source, pipeline, recorder, *, realtime_factor, bar) -> str | None:
-    """Run to the end or to a signal. Returns the name of the signal that stopped it, or None."""
+async def _drive(source, pipeline, recorder, *, realtime_factor, bar, stop) -> str | None:
+    """Run to the end or to a signal (``stop``: a companion.signals.StopSignals, which may have caught one already).
+    Returns the name of the signal that stopped it, or None."""
     import asyncio
 
     from companion.pipeline.core import run_source
@@ -56,10 +57,17 @@ async def _drive(source, pipeline, recorder, *, realtime_factor, bar) -> str | N
 
     def on_signal(sig: signal.Signals) -> None:
         stopped_by.append(sig.name)
+        stop.note(sig.name)
         task.cancel()
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, on_signal, sig)
+    if stop.reason is not None:  # caught before the loop ran: nothing is read
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.remove_signal_handler(sig)
+        stop.rearm()
+        await source.aclose()
+        return stop.reason
     logging.getLogger("companion.replay").debug("replaying %s (SIGINT/SIGTERM: stop, finalise the record)",
                                                source.info.location)
 
@@ -78,6 +86,7 @@ async def _drive(source, pipeline, recorder, *, realtime_factor, bar) -> str | N
     finally:
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.remove_signal_handler(sig)
+        stop.rearm()  # (removing asyncio's handlers put the defaults back: they would kill the finalising)
         await source.aclose()
     return stopped_by[0] if stopped_by else None
 
@@ -97,6 +106,7 @@ def _print_labelled(line: str) -> None:
 
 
 def _print_summary(source, pipeline, out: Path, stopped_by: str | None, elapsed_s: float, *, recorded: bool = True) -> None:
+    recorded = recorded and out.exists()
     print(f"source       {source.info.kind} {source.info.location}")
     for k, v in source.info.details.items():
         print(f"  {k}: {v}")
@@ -113,7 +123,7 @@ def _print_summary(source, pipeline, out: Path, stopped_by: str | None, elapsed_
     print(f"processed    {n} events in {elapsed_s:.2f} s wall time ({rate})")
     if stopped_by:
         print(f"stopped by   {stopped_by}" + (": record finalised with what was read so far" if recorded else ""))
-    print(f"record       {out}")
+    print(f"record       {out}" if out.exists() else "record       none (nothing was read)")
 
 
 def _build_pipeline(recorder, args):
@@ -160,6 +170,15 @@ def _refuse_overwriting_inputs(out: Path, inputs: list[Path]) -> None:
 
 
 def cmd_replay(args) -> int:
+    from companion.signals import StopSignals
+
+    with StopSignals() as stop:  # before any file is created: a signal now finalises the record, never kills
+        rc = _replay(args, stop)
+    args.exit_now = True  # everything is written: the process may skip the interpreter's teardown (see main)
+    return rc
+
+
+def _replay(args, stop) -> int:
     import asyncio
 
     from companion.pipeline.core import wall_time_s
@@ -198,7 +217,7 @@ def cmd_replay(args) -> int:
     t0 = wall_time_s()
     stopped_by = None
     try:
-        stopped_by = asyncio.run(_drive(source, pipeline, recorder, realtime_factor=args.realtime, bar=bar))
+        stopped_by = asyncio.run(_drive(source, pipeline, recorder, realtime_factor=args.realtime, bar=bar, stop=stop))
     finally:
         bar.close()
         _finish_record(recorder, source, pipeline, config, stopped_by)
@@ -212,7 +231,7 @@ def cmd_replay(args) -> int:
             for stage in pipeline.stages:
                 for line in stage.summary_lines():
                     _print_labelled(line)
-    if stopped_by:
+    if stopped_by or stop.reason:
         return EXIT_INTERRUPTED
     return EXIT_DAMAGED if _damaged(source) else EXIT_OK
 
@@ -233,6 +252,13 @@ def cmd_replay_fleet(args, logs: list[str]) -> int:
 
 def cmd_run(args) -> int:
     """The live companion: settings from --config (TOML) with command-line overrides, then the runtime."""
+    from companion.signals import StopSignals
+
+    with StopSignals() as stop:  # before any file is created: a signal now finalises the record, never kills
+        return _run(args, stop)
+
+
+def _run(args, stop) -> int:
     from companion.config import ConfigError, load_config, parse_override
     from companion.pipeline.core import wall_time_s
     from companion.record import Recorder, RotatingRecorder
@@ -287,7 +313,7 @@ def cmd_run(args) -> int:
     else:
         recorder = Recorder(out, **rec_kw)
     try:
-        runtime = Runtime(config, recorder)
+        runtime = Runtime(config, recorder, stop_signals=stop)
     except (ValueError, ImportError) as err:  # the gravity map (MapFormatError is a ValueError) or its extra
         recorder.close()
         if live_view is not None:
@@ -314,7 +340,7 @@ def cmd_run(args) -> int:
         _print_run_summary(runtime, recorder, stopped_by, wall_time_s() - t0)
     # a service stopped on purpose (SIGTERM, --duration) exits cleanly
     args.exit_now = True  # everything is written: the process may skip the interpreter's teardown (see main)
-    return EXIT_INTERRUPTED if stopped_by == "SIGINT" else EXIT_OK
+    return EXIT_INTERRUPTED if (stopped_by or stop.reason) == "SIGINT" else EXIT_OK
 
 
 def _print_run_summary(runtime, recorder, stopped_by: str | None, elapsed_s: float) -> None:

@@ -181,6 +181,10 @@ def _gnss_cov_enu_m2(fix: GnssFix) -> list[list[float]] | None:
     return [[h * h, 0.0, 0.0], [0.0, h * h, 0.0], [0.0, 0.0, v * v]]
 
 
+#: a replay hands the event loop a turn at least this often (wall s): SIGINT/SIGTERM stop it within it
+YIELD_S = 0.05
+
+
 async def run_source(
     source: Source,
     pipeline: Pipeline,
@@ -195,12 +199,13 @@ async def run_source(
     (2.0 twice as fast). Pacing uses the loop clock only to wait; event times stay the log's.
     ``on_progress(source, events so far)`` is called every ``progress_interval_s`` of wall time (a display: a paced
     replay's few events a second refresh it as often as a fast one's thousands); the clock is looked at after every
-    paced event, else every 256 events.
+    paced event, else every 64 events; the loop gets a turn every ``YIELD_S`` (a signal stops the replay there).
     """
     loop = asyncio.get_running_loop()
     t0_wall = t0_ev = None
     n = 0
     next_progress = loop.time() + progress_interval_s if on_progress is not None else math.inf
+    next_yield = loop.time() + YIELD_S
     async for ev in source:
         if realtime_factor:
             if t0_ev is None:
@@ -210,9 +215,14 @@ async def run_source(
                 await asyncio.sleep(delay)
         pipeline.process(ev)
         n += 1
-        if (realtime_factor or not n & 255) and loop.time() >= next_progress:
-            on_progress(source, n)
-            next_progress = loop.time() + progress_interval_s
+        if realtime_factor or not n & 63:
+            now = loop.time()
+            if now >= next_progress:
+                on_progress(source, n)
+                next_progress = now + progress_interval_s
+            if now >= next_yield:  # a signal's handler runs at the loop's next turn, not after a whole batch
+                await asyncio.sleep(0)
+                next_yield = loop.time() + YIELD_S
     pipeline.finish()
 
 

@@ -80,8 +80,11 @@ def percentile_ms(values, q: float) -> float:
 
 
 class Runtime:
-    def __init__(self, config: Config, sink: Any, *, notifier: Notifier | None = None, nav_config: Any = None, log=None) -> None:
+    def __init__(self, config: Config, sink: Any, *, notifier: Notifier | None = None, nav_config: Any = None, log=None,
+                 stop_signals: Any = None) -> None:
         self.config = config
+        #: a companion.signals.StopSignals caught from the command's start (a signal before the loop runs stops it)
+        self.stop_signals = stop_signals
         self.sink = sink
         gravity, stages = None, []
         self.gravity_stage = None
@@ -172,6 +175,8 @@ class Runtime:
         sigs = (signal.SIGINT, signal.SIGTERM)
         for sig in sigs:
             loop.add_signal_handler(sig, stop, sig.name)
+        if self.stop_signals is not None and self.stop_signals.reason is not None:
+            stop(self.stop_signals.reason)  # caught before the loop ran
         if duration_s:
             loop.call_later(duration_s, stop, f"--duration {duration_s:g} s")
         self.link.start(loop, queue.put_nowait)
@@ -227,6 +232,8 @@ class Runtime:
         finally:
             for sig in sigs:
                 loop.remove_signal_handler(sig)
+            if self.stop_signals is not None:
+                self.stop_signals.rearm()  # (the defaults are back: they would kill the finalising)
             housekeeping.cancel()
             self.notifier.stopping()
             await asyncio.to_thread(self.link.stop, 1.0)

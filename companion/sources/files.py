@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import threading
 import struct
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -290,13 +291,15 @@ class FileSource(Source):
         self.info = self._reader.info
         self._batch_size = batch_size
         self.events_out = 0
+        self._reading = threading.Lock()  # held by the worker thread while it reads a batch
+        self._closed = False
 
     def progress(self) -> tuple[int, int] | None:
         return (self._reader.offset(), self._reader.size_bytes)
 
     async def _iterate(self) -> AsyncIterator[Event]:
         while True:
-            batch = await asyncio.to_thread(self._reader.read_batch, self._batch_size)
+            batch = await asyncio.to_thread(self._read_batch)
             if not batch:
                 break
             for ev in batch:
@@ -308,5 +311,15 @@ class FileSource(Source):
     def __aiter__(self) -> AsyncIterator[Event]:
         return self._iterate()
 
+    def _read_batch(self) -> list[Event]:
+        with self._reading:
+            return [] if self._closed else self._reader.read_batch(self._batch_size)
+
     async def aclose(self) -> None:
-        self._reader.close()
+        """Close once the batch being read (a stop cancels the wait for it, not the thread) is done."""
+        await asyncio.to_thread(self._close)
+
+    def _close(self) -> None:
+        with self._reading:
+            self._closed = True
+            self._reader.close()
