@@ -91,8 +91,12 @@ def arm_params(a, arm: str) -> dict[str, float]:
     return p
 
 
+#: ArduPlane's 50 Hz main loop refuses a 50 Hz RAW_IMU stream ("Requested rate ... too fast"): ask for 25 Hz
+VEHICLE_SETS = {"plane": ["streams.RAW_IMU=25"], "rover": []}
+
+
 def companion_sets(a) -> list[str]:
-    return COMPANION_SETS + [f"gravity.map={json.dumps(str(a.map_path))}"] + list(a.companion_set or [])
+    return COMPANION_SETS + VEHICLE_SETS[a.vehicle] + [f"gravity.map={json.dumps(str(a.map_path))}"] + list(a.companion_set or [])
 
 
 # -- the mission -------------------------------------------------------------------------------------------------------

@@ -1,0 +1,121 @@
+"""Re-run the companion (navigator + sequential gravity stage + injector, shadow mode) on the inputs it recorded in a
+kept gravity-aided SITL flight (replay.live.sitl_gravity, its ``DIR/companion``), with other settings, and score its
+own GPS_INPUT in the GNSS denial against SITL's truth: settings compared on the same flight without flying again
+(nothing reaches the autopilot in a re-run, so the vehicle's path is the recorded one).
+
+    python -m replay.live.sitl_gravity_rerun out/plane_ak_s1/companion --map GRID.nc --set gravity.seq_accel_bias_ug=2000
+
+Prints the companion's error / stated h_acc / fix type every 5 min of the denial, its mean error and the share of its
+3D fixes within 2x their h_acc.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from companion import events as ev
+from companion.config import load_config, parse_override
+from companion.inject.gps_input import GpsInputRecord, Injector
+from companion.pipeline.core import build_pipeline
+from replay.live import sitl_core as core
+
+#: the recorded inputs of a live companion (companion.pipeline.core topics) and their event types
+INPUTS = {"/input/imu": ev.ImuSample, "/input/imu1": ev.ImuSample, "/input/imu2": ev.ImuSample,
+          "/input/gnss": ev.GnssFix, "/input/gnss1": ev.GnssFix, "/input/attitude": ev.Attitude,
+          "/input/heartbeat": ev.Heartbeat, "/input/system_time": ev.SystemTime,
+          "/input/altitude": ev.AutopilotAltitude, "/input/autopilot_position": ev.AutopilotPosition,
+          "/input/gravity": ev.GravityReading}
+
+
+def recorded_inputs(mcap: Path):
+    from companion.record.inspect import iter_payloads
+
+    for topic, _t, data in iter_payloads(mcap):
+        cls = INPUTS.get(topic)
+        if cls is None:
+            continue
+        d = json.loads(data)
+        kw = {}
+        for f in dataclasses.fields(cls):
+            v = d.get(f.name)
+            kw[f.name] = tuple(v) if isinstance(v, list) else (math.nan if v is None and f.type == "float" else v)
+        yield cls(**kw)
+
+
+class _Keep:
+    def __init__(self) -> None:
+        self.records: list[GpsInputRecord] = []
+
+    def write(self, item, topic=None) -> None:
+        if isinstance(item, GpsInputRecord):
+            self.records.append(item)
+
+    def write_location(self, *a, **k) -> None:
+        pass
+
+    def write_log(self, *a, **k) -> None:
+        pass
+
+
+def rerun(arm_dir: Path, sets: list[str]) -> dict:
+    """The companion's own figures in the denial with ``sets`` (section.key=value, as ``companion run --set``)."""
+    from companion.gravity.stage import live_gravity_stage
+
+    log = core.FlightLog.from_dict(json.loads((arm_dir / "log.json").read_text()))
+    cfg = load_config(None, dict(parse_override(s) for s in ['link.connect="tcp:127.0.0.1:1"', 'inject.mode="shadow"', *sets]))
+    sink = _Keep()
+    stage = live_gravity_stage(cfg.gravity)
+    pipe = build_pipeline(sink, nav_config=cfg.nav_config(),
+                          extra_stages=[stage, Injector(cfg.inject, trust=cfg.trust)])
+    for e in recorded_inputs(arm_dir / "companion.mcap"):
+        pipe.process(e)
+    pipe.finish()
+    on, off = log.marks["deny_on"], log.marks["deny_off"]
+    recs = [{"sent": True, "lat_deg": r.lat_deg, "lon_deg": r.lon_deg, "time_boot_us": r.time_boot_us,
+             "fix_type": r.fix_type, "h_acc_m": r.h_acc_m} for r in sink.records]
+    t, err, fx, hacc = core.companion_error(recs, log.truth)
+    den = (t >= on) & (t < off)
+    d3 = den & (fx >= 3)
+    marks = {}
+    for m in range(5, int((off - on) / 60.0) + 1, 5):
+        i = int(np.argmin(np.abs(t - (on + 60.0 * m)))) if len(t) else 0
+        marks[m] = (float(err[i]), float(hacc[i]), int(fx[i])) if len(t) and abs(t[i] - on - 60.0 * m) < 5 else None
+    return {"marks": marks, "mean_m": float(err[den].mean()) if den.any() else math.nan,
+            "mean_3d_m": float(err[d3].mean()) if d3.any() else math.nan,
+            "share_3d": float(d3.sum() / max(1, den.sum())),
+            "within_2hacc": float(np.mean(err[d3] <= 2 * hacc[d3])) if d3.any() else math.nan}
+
+
+def main(argv: list[str] | None = None) -> int:
+    from replay.live.sitl_gravity import COMPANION_SETS, VEHICLE_SETS
+
+    p = argparse.ArgumentParser(prog="python -m replay.live.sitl_gravity_rerun", description=__doc__.split("\n\n")[0])
+    p.add_argument("dir", help="the companion arm of a kept run (DIR/companion of replay.live.sitl_gravity)")
+    p.add_argument("--map", required=True, help="the gravity grid the run flew over")
+    p.add_argument("--vehicle", choices=tuple(VEHICLE_SETS), default="plane")
+    p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="on top of the run's companion settings (replay.live.sitl_gravity.COMPANION_SETS)")
+    a = p.parse_args(argv)
+    arm = Path(a.dir)
+    if not (arm / "companion.mcap").exists() or not (arm / "log.json").exists():
+        print(f"no companion.mcap and log.json in {arm}", file=sys.stderr)
+        return 2
+    sets = COMPANION_SETS + VEHICLE_SETS[a.vehicle] + [f"gravity.map={json.dumps(str(Path(a.map).resolve()))}"] + a.set
+    r = rerun(arm, sets)
+    print(f"settings: --set {' --set '.join(a.set) or '(the run s own)'}")
+    print("  error / h_acc / fix every 5 min: " + "  ".join(
+        f"{k}: {v[0]:.0f}/{v[1]:.0f}/{v[2]}" if v else f"{k}: -" for k, v in r["marks"].items()))
+    print(f"  mean {r['mean_m']:.0f} m (3D fixes {r['mean_3d_m']:.0f} m, {r['share_3d']:.0%} of the denial's "
+          f"GPS_INPUT); within 2x h_acc {r['within_2hacc']:.0%}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
