@@ -79,6 +79,11 @@ def _qrotvec(rx, ry, rz):
     return (math.cos(a / 2), rx * s, ry * s, rz * s)
 
 
+def _gravity(sin2_lat: float, w: float, h_m: float) -> float:
+    """WGS84 normal gravity (Somigliana) with the free-air correction; ``w`` = sqrt(1 - e^2 sin^2 lat)."""
+    return 9.7803253359 * (1.0 + 0.00193185265241 * sin2_lat) / w - 3.086e-6 * h_m
+
+
 def _rot(q, vx, vy, vz):
     """C(q) @ v without building the matrix."""
     w, x, y, z = q
@@ -126,8 +131,7 @@ class StrapdownIns:
 
     def gravity(self) -> float:
         s2 = math.sin(self.lat_rad) ** 2
-        g0 = 9.7803253359 * (1.0 + 0.00193185265241 * s2) / math.sqrt(1.0 - WGS84_E2 * s2)
-        return g0 - 3.086e-6 * self.h_m
+        return _gravity(s2, math.sqrt(1.0 - WGS84_E2 * s2), self.h_m)
 
     @property
     def lat_deg(self) -> float:
@@ -174,7 +178,15 @@ class StrapdownIns:
         gx = gyro_frd_radps[0] - self.bg[0]
         gy = gyro_frd_radps[1] - self.bg[1]
         gz = gyro_frd_radps[2] - self.bg[2]
-        (wie_n, wie_e, wie_d), (wen_n, wen_e, wen_d) = self.nav_rates()
+        # the Earth's radii, rates and gravity at this latitude (nav_rates(), radii(), gravity() with one sin and cos)
+        lat, h = self.lat_rad, self.h_m
+        sl, cl = math.sin(lat), math.cos(lat)
+        s2 = sl * sl
+        w = math.sqrt(1.0 - WGS84_E2 * s2)
+        rm, rn = WGS84_A_M * (1.0 - WGS84_E2) / w**3, WGS84_A_M / w
+        om = self._omega
+        wie_n, wie_e, wie_d = om * cl, 0.0, -om * sl
+        wen_n, wen_e, wen_d = self.ve / (rn + h), -self.vn / (rm + h), -self.ve * (sl / cl) / (rn + h)
         win_n, win_e, win_d = wie_n + wen_n, wie_e + wen_e, wie_d + wen_d
         # attitude: body rotation on the right, navigation-frame rotation on the left
         q_old = self.q
@@ -193,10 +205,9 @@ class StrapdownIns:
         vn, ve, vd = self.vn, self.ve, self.vd
         an = fn - (ce * vd - cd * ve)
         ae = fe - (cd * vn - cn * vd)
-        ad = fd - (cn * ve - ce * vn) + self.gravity()
+        ad = fd - (cn * ve - ce * vn) + _gravity(s2, w, h)
         nvn, nve, nvd = vn + an * dt, ve + ae * dt, vd + ad * dt
         # position (trapezoidal velocity)
-        rm, rn = self.radii()
         mvn, mve, mvd = 0.5 * (vn + nvn), 0.5 * (ve + nve), 0.5 * (vd + nvd)
         self.lat_rad += mvn / (rm + self.h_m) * dt
         self.lon_rad += mve / ((rn + self.h_m) * math.cos(self.lat_rad)) * dt

@@ -63,7 +63,10 @@ class InsFilter:
         if vel is not None:
             v = (vel[0], vel[1], vel[2] if math.isfinite(vel[2]) else 0.0)
         self.strapdown = StrapdownIns(t_ins, lat, lon, alt, v, att.roll_rad, att.pitch_rad, att.yaw_rad)
-        self._hist: deque[list[float]] = deque()  # [t, n, e, d, vn, ve, vd] per IMU step (history_s + 0.2 s)
+        # (t, n, e, d, vn, ve, vd) per IMU step (history_s + 0.2 s), each less the corrections made before it: every
+        # correction shifts the whole history alike, so it is added once to _shift, not to every entry
+        self._hist: deque[tuple[float, ...]] = deque()
+        self._shift = [0.0] * 6
         self._keep_s = latency.history_s()
         kf = KalmanFilter(dim_x=15, dim_z=3)
         sh, sv = 3.0, 5.0
@@ -99,8 +102,9 @@ class InsFilter:
             self.t_s = ins.t_s
         if ins.step(t, accel_frd_mps2, gyro_frd_radps) > 0:
             if self._keep_s is not None:
-                hist = self._hist
-                hist.append([t, *self.frame.ned_tuple(ins.lat_deg, ins.lon_deg, ins.h_m), ins.vn, ins.ve, ins.vd])
+                hist, sh = self._hist, self._shift
+                n, e, d = self.frame.ned_tuple(ins.lat_deg, ins.lon_deg, ins.h_m)
+                hist.append((t, n - sh[0], e - sh[1], d - sh[2], ins.vn - sh[3], ins.ve - sh[4], ins.vd - sh[5]))
                 while hist[0][0] < t - self._keep_s - 0.2:
                     hist.popleft()
             f = ins.f_ned
@@ -163,13 +167,10 @@ class InsFilter:
             cs[a] += dp[a]
             cs[3 + a] += dv[a]
             cs[6 + a] += dv[a] * t
-        for h in self._hist:
-            h[1] += dp[0]
-            h[2] += dp[1]
-            h[3] += dp[2]
-            h[4] += dv[0]
-            h[5] += dv[1]
-            h[6] += dv[2]
+        sh = self._shift
+        for a in range(3):
+            sh[a] += dp[a]
+            sh[3 + a] += dv[a]
 
     def state_at(self, t: float, delay_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """INS position (local NED) and velocity at the epoch ``t - delay`` (default: the GNSS latency) a measurement
@@ -178,16 +179,17 @@ class InsFilter:
         te = t - (self.latency.delay_s() if delay_s is None else delay_s)
         hist = self._hist
         if hist and te < hist[-1][0]:
+            sh = np.array(self._shift)
             if te <= hist[0][0]:
-                h = hist[0]
-                return np.array(h[1:4]), np.array(h[4:7])
+                x = np.array(hist[0][1:]) + sh
+                return x[0:3], x[3:6]
             for i in range(len(hist) - 1, 0, -1):
                 a = hist[i - 1]
                 if a[0] <= te:
                     b = hist[i]
                     w = (te - a[0]) / (b[0] - a[0]) if b[0] > a[0] else 1.0
                     pa, pb = np.array(a[1:]), np.array(b[1:])
-                    x = pa + w * (pb - pa)
+                    x = pa + w * (pb - pa) + sh
                     return x[0:3], x[3:6]
         n, e, d = self.frame.ned_tuple(ins.lat_deg, ins.lon_deg, ins.h_m)
         dt = te - ins.t_s

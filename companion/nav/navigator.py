@@ -107,6 +107,7 @@ class Navigator(Stage):
         self._next_tick: int | None = None
         self._last_fix_t: float | None = None
         self._since = _SinceOutput()
+        self._imu_index = c.imu_index
 
     @property
     def mode(self) -> str:
@@ -123,7 +124,10 @@ class Navigator(Stage):
 
     # ------------------------------------------------------------------ stream interface
     def process(self, event: Event) -> list[Event]:
-        """Consume one event; returns the outputs that became final."""
+        """Consume one event; returns the outputs that became final. The samples of the IMUs it does not navigate
+        with (IMU2, IMU3: two thirds of a dataflash log's events) are not its input: passed over at once."""
+        if type(event) is ImuSample and event.imu_index != self._imu_index:
+            return []
         for ev in self._reorder.push(event):
             self._handle(ev)
         return self._take_outputs()

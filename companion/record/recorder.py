@@ -93,6 +93,16 @@ def _dumps(d: Any) -> bytes:
         return json.dumps(plain, separators=(",", ":"), allow_nan=False).encode()
 
 
+def _dumps_jsonable(d: Any) -> bytes:
+    """:func:`_dumps` of what ``to_jsonable`` made (plain already: NaN/inf are None): the unknowns dropped at once; a
+    payload that still says null (inside a string, a value not plain after all) takes the general path."""
+    try:
+        data = orjson.dumps(drop_unknown(d), option=_ORJSON_OPTS)
+    except TypeError:
+        return _dumps(d)
+    return data if b"null" not in data else _dumps(d)
+
+
 def _time_ns(t_s: Any) -> int:
     """Vehicle time in integer nanoseconds; raises ValueError for None/NaN/negative times."""
     try:
@@ -264,9 +274,9 @@ class Recorder:
             except TypeError:
                 data = None
             if data is None or b"null" in data:
-                data = _dumps(to_json(item))
+                data = _dumps_jsonable(to_json(item))
         else:
-            data = _dumps(to_json(item))
+            data = _dumps_jsonable(to_json(item))
         self._add(channel_id, t_ns, data)
 
     def write_dict(self, topic: str, schema_name: str, json_schema: Mapping, payload: Mapping, t_s: float) -> None:
@@ -560,8 +570,12 @@ def _stamp(log_ns: int) -> dict[str, int]:
 
 
 def _flatten_cov(cov: Any) -> list[float]:
+    if type(cov) is list and len(cov) == 3 and all(type(r) is list and len(r) == 3 for r in cov):
+        flat = [float(x) for r in cov for x in r]  # the pipeline's nested lists: the common case
+        if math.isfinite(sum(flat)):  # a finite sum: every entry finite (else the check below says which way not)
+            return flat
     rows = cov.tolist() if hasattr(cov, "tolist") else cov
-    flat: list[float] = []
+    flat = []
     for r in rows:
         if isinstance(r, (list, tuple)):
             flat.extend(float(x) for x in r)
