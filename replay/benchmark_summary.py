@@ -117,7 +117,8 @@ def _ingest(t: str) -> Headline:
     rss = number(find(r"Peak RSS of the long replay / the 5 min one: ([\d.]+)", t)[1])
     fast = sum(x >= float(m[2]) for x in xrt)
     return Headline(f"replay with navigator and record {min(xrt):.0f}-{max(xrt):.0f}x real time ({fast} of {len(xrt)} "
-                    f"logs >= {m[2]}x); {min(ratio):.2f}-{max(ratio):.2f} x the speed of pymavlink's bare parse (CPU time; "
+                    f"logs >= {m[2]}x); {min(ratio):.2f}-{max(ratio):.2f} x the speed of pymavlink's bare parse "
+                    f"(CPU time; "
                     f"target >= {m[1]}); memory of a 3 h replay {rss:.2f} x a 5 min one (target <= 1.2)",
                     f"speed {met(fast == len(xrt) and min(ratio) >= float(m[1]))}, memory {met(rss <= 1.2)}")
 
@@ -129,7 +130,8 @@ def _gap_filling(t: str) -> Headline:
     ins = number(row(section(t, "8 s blockage", 3), "INS alone", "H RMSE m"))
     beats = re.findall(r"^- [\d.]+ s: KNN\+INS\+KF H RMSE [\d.]+ m (beats|does NOT beat) the best baseline", t, re.M)
     return Headline(f"8 s blockage {blk[1]} m RMSE (90 % interval {interval} m; INS alone {ins:.2f} m); between 1 Hz "
-                    f"fixes {fill[1]} m; beats every baseline at {beats.count('beats')} of {len(beats)} blockage lengths",
+                    f"fixes {fill[1]} m; beats every baseline at {beats.count('beats')} of {len(beats)} blockage "
+                    f"lengths",
                     f"8 s <= {blk[2]} m {met(float(blk[1]) <= float(blk[2]))}; fill <= {fill[2]} m "
                     f"{met(float(fill[1]) <= float(fill[2]))}")
 
@@ -220,19 +222,33 @@ def _fuzz(t: str) -> Headline:
 
 
 def _sitl(t: str) -> Headline:
-    errs = re.findall(r"took over; no failsafe: (\w+), EKF error <= ([\d.]+) m at every 5 s mark "
-                      r"\(target <= ([\d.]+) m, no failsafe: (NOT met|met)\)", t)
+    errs = re.findall(r"^- \S+-deny-(\d+)\S* run \d+ \w+: took over; no failsafe: (\w+), "
+                      r"EKF error <= ([\d.]+) m at every 5 s mark "
+                      r"\(target <= ([\d.]+) m, no failsafe: (NOT met|met)\)", t, re.M)
+    longer = re.findall(r"took over; flew on ([\d.]+) s of the (\d+) s denial, <= ([\d.]+) m to \+\d+ s "
+                        r"\(target (>= \d+ s at <= [\d.]+ m): (NOT met|met)\)", t)
     honest = re.findall(r"3D fixes sent within 2x their h_acc \(target >= 95 %: (NOT met|met)\)", t)
     if not errs or not honest:
         raise NotFound("no takeover or honesty lines in 'Against the targets'")
-    flew = sum(e[0] == "yes" for e in errs)
-    worst = max(float(e[1]) for e in errs)
-    ok = sum(e[3] == "met" for e in errs)
+    lengths = "/".join(sorted({e[0] for e in errs}, key=int))
+    flew = sum(e[1] == "yes" for e in errs)
+    worst = max(float(e[2]) for e in errs)
+    ok = sum(e[4] == "met" for e in errs)
     fine = sum(h == "met" for h in honest)
-    return Headline(f"with the companion, {flew} of {len(errs)} takeover flights flew on without a failsafe (ArduPilot "
-                    f"alone: EKF failsafe at +8 s), EKF error up to {worst:g} m; the companion's 3D fixes within 2x "
-                    f"their stated accuracy in {fine} of {len(honest)} flights",
-                    f"<= {errs[0][2]} m: {ok} of {len(errs)} met; honesty: {fine} of {len(honest)} met")
+    alone = [number(r["EKF failsafe (+s)"]) for tab in tables(t) for r in tab
+             if r.get("arm") == "ArduPilot alone" and "EKF failsafe (+s)" in r]
+    if not alone:
+        raise NotFound("no EKF failsafe times of ArduPilot alone")
+    text = (f"ArduPilot alone: EKF failsafe {min(alone):g}-{max(alone):g} s into the outage. With the companion, "
+            f"{lengths} s outages: {flew} of {len(errs)} takeover flights flew on without a failsafe, EKF error up "
+            f"to {worst:g} m")
+    target = f"<= {errs[0][3]} m: {ok} of {len(errs)} met"
+    if longer:
+        flown = [float(x[0]) for x in longer]
+        text += f"; {longer[0][1]} s outages: flew on {min(flown):g}-{max(flown):g} s"
+        target += f"; {longer[0][3]}: {sum(x[4] == 'met' for x in longer)} of {len(longer)} met"
+    return Headline(text + f"; its 3D fixes within 2x their stated accuracy in {fine} of {len(honest)} flights",
+                    target + f"; honesty: {fine} of {len(honest)} met")
 
 
 def _paper(t: str) -> Headline:
