@@ -78,7 +78,9 @@ class Format:
             offsets.append(ofs)
             self.chars.append(ch)
             ofs += dt.itemsize
-        self.fits = ofs == length  # pymavlink cannot unpack a record whose fields do not fill it
+        # pymavlink cannot unpack a record whose fields do not fill it; a header-only record (Length 3, no Format)
+        # has no field to read either
+        self.fits = ofs == length and bool(self.chars)
         self.dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets,
                                "itemsize": max(length, ofs, 3)}) if self.fits else None
 

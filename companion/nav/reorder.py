@@ -9,6 +9,10 @@ from collections.abc import Mapping
 from companion.events import Event
 
 
+#: events a buffer holds at most (a 0.5 s horizon holds about 1,500 at 1 kHz IMU x 3): beyond, memory would grow
+MAX_HELD = 20_000
+
+
 class ReorderBuffer:
     """Releases events in time order once they are older than ``horizon_s`` behind the newest.
 
@@ -18,11 +22,19 @@ class ReorderBuffer:
 ahead of the newest is held until ``confirm_n`` consecutive such events confirm the jump (a stream gap); an event
 back on the stream clock first means they were outliers: dropped and counted in ``dropped_future`` (so one
 future-stamped event cannot drag the horizon and flush everything).
+
+    Memory stays bounded whatever the times: an event equal to the previous one of its type (the same record
+    repeated: same time, same values) is dropped and counted in ``duplicates``, and at most ``max_held`` events wait
+    (beyond, the oldest go out early, counted in ``forced``: distinct events that all share a time never age).
     """
 
     def __init__(self, horizon_s: float, priority: Mapping[type, int] | None = None, default_priority: int = 0,
-                 outlier_s: float = float("inf"), confirm_n: int = 1) -> None:
+                 outlier_s: float = float("inf"), confirm_n: int = 1, max_held: int = MAX_HELD) -> None:
         self.horizon_s = horizon_s
+        self.max_held = max_held
+        self.duplicates = 0
+        self.forced = 0
+        self._last: dict[type, Event] = {}
         self.outlier_s = outlier_s
         self.confirm_n = confirm_n
         self._held: list[Event] = []  # events far ahead of the stream, waiting for confirmation
@@ -36,6 +48,11 @@ future-stamped event cannot drag the horizon and flush everything).
         self.late = 0
 
     def push(self, ev: Event) -> list[Event]:
+        last = self._last.get(type(ev))
+        if last is not None and last.t_s == ev.t_s and last == ev:
+            self.duplicates += 1
+            return []
+        self._last[type(ev)] = ev
         if self.newest_s > float("-inf") and ev.t_s > self.newest_s + self.outlier_s:
             if self._held and abs(ev.t_s - self._held[0].t_s) > self.outlier_s:
                 self.dropped_future += len(self._held)  # inconsistent outliers: start again from this one
@@ -61,7 +78,9 @@ future-stamped event cannot drag the horizon and flush everything).
         heapq.heappush(self._heap, (ev.t_s, self._priority.get(type(ev), self._default), self._seq, ev))
         out = []
         limit = self.newest_s - self.horizon_s
-        while self._heap and self._heap[0][0] <= limit:
+        while self._heap and (self._heap[0][0] <= limit or len(self._heap) > self.max_held):
+            if self._heap[0][0] > limit:
+                self.forced += 1
             item = heapq.heappop(self._heap)
             self._released = max(self._released, item[0])
             out.append(item[3])

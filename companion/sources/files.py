@@ -114,6 +114,9 @@ class LogReader:
                 for ev in self._final_events():
                     out += self._reorder.push(ev)
                 out += self._reorder.flush()
+                if self._reorder.duplicates:
+                    self.info.warnings.append(f"dropped {self._reorder.duplicates} events: the same record repeated "
+                                              "(same time, same values)")
                 break
             for ev in evs:
                 out += self._reorder.push(ev)

@@ -13,7 +13,9 @@ Kinds (both formats unless marked):
 * dataflash: ``fmt_rename`` (a column of an FMT renamed), ``fmt_length`` (FMT Length +-1..20), ``fmt_format``
   (a format character replaced, by a valid or an invalid one), ``fmt_name`` (a decoded type renamed: the type
   vanishes), ``type_byte`` (one record's type byte), ``imu_float`` (an IMU Acc/Gyr float set to 1e22, NaN,
-  inf, ..., in one record or a short run);
+  inf, ..., in one record or a short run), ``fmt_header_only`` (an FMT redefining IMU/ATT as Length 3, no Format or
+  Columns, then such a record);
+* ``repeat_timestamps``: one IMU (or other timed) record repeated 20,000-200,000 times in place;
 * ``time_one<d>`` / ``time_rest<d>``: the boot time of one record of a decoded type, or of every timed record
   from one on, moved by d = +1e3 s, +1e5 s, +4e6 s, to >= 2^64 ns (a 32-bit ms column cannot hold that: set to
   its maximum, and said), or back half-way to boot; the field is decoded and rewritten (tlog: the frame
@@ -36,6 +38,7 @@ from pymavlink.DFReader import FORMAT_TO_STRUCT
 
 from replay.fuzz.logs import (
     FMT_BODY,
+    FMT_TYPE,
     TLOG_TIME_FIELDS,
     WANTED_DF,
     CleanInput,
@@ -220,6 +223,46 @@ def fmt_name(rng, c: CleanInput, pool):
     buf = bytearray(c.data)
     _put_fmt(buf, off, name=new.encode()[:4])
     return bytes(buf), f"FMT of {f.name} renamed {new!r}"
+
+
+def fmt_header_only(rng, c: CleanInput, pool):
+    """An FMT redefining a decoded type (IMU or ATT most of the time) as header only -- Length 3, empty Format and
+    Columns -- inserted between two records, then a record of that type (its 3 header bytes)."""
+    log = c.parsed()
+    if not isinstance(log, DataflashLog):
+        raise NotApplicable("dataflash only")
+    _, f = _fmt_records(log, rng, wanted_p=1.0)
+    named = [g for g in log.formats.values() if g.name in ("IMU", "ATT") and g.offset >= 0]
+    if named and rng.random() < 0.8:
+        f = _pick(rng, named)
+    r = _middle(rng, log.records)
+    fmt = bytes((0xA3, 0x95, FMT_TYPE)) + FMT_BODY.pack(f.type, 3, f.name.encode()[:4], b"", b"")
+    data = c.data[:r.offset] + fmt + bytes((0xA3, 0x95, f.type)) + c.data[r.offset:]
+    return data, f"header-only FMT (Length 3, no Format, no Columns) redefining {f.name} at {r.offset}, then one {f.name}"
+
+
+def repeat_timestamps(rng, c: CleanInput, pool):
+    """One record of a decoded type (IMU most of the time) repeated many times in place: the same time stamp
+    tens of thousands of times (memory must stay flat)."""
+    log = c.parsed()
+    buf = bytes(c.data)
+    n = int(rng.choice([20_000, 60_000, 200_000]))
+    if isinstance(log, DataflashLog):
+        imu = [r for r in log.records if log.formats[r.type].name.startswith("IMU")]
+        timed = imu if imu and rng.random() < 0.8 else [r for r in log.records if log.formats[r.type].time_column()]
+        if not timed:
+            raise NotApplicable("no timed record")
+        r = _middle(rng, timed)
+        rec = buf[r.offset:r.offset + log.formats[r.type].length]
+        name, at = log.fmt(r).name, r.offset
+    else:
+        frames = [f for f in log.frames if f.msgid in (27, 116, 30)]  # RAW_IMU, SCALED_IMU2, ATTITUDE
+        if not frames:
+            raise NotApplicable("no IMU or ATTITUDE frame")
+        f = _middle(rng, frames)
+        rec, name, at = buf[f.offset:f.end], f"msgid {f.msgid}", f.offset
+        n = min(n, 60_000)  # (a tlog frame carries its own 8-byte stamp: the same one repeated)
+    return buf[:at] + rec * n + buf[at:], f"one {name} record at {at} repeated {n} times (one time stamp)"
 
 
 def type_byte(rng, c: CleanInput, pool):
@@ -520,6 +563,8 @@ KINDS: dict[str, Kind] = {
     "fmt_name": Kind(fmt_name, DF),
     "type_byte": Kind(type_byte, BOTH),
     "imu_float": Kind(imu_float, DF),
+    "fmt_header_only": Kind(fmt_header_only, DF),
+    "repeat_timestamps": Kind(repeat_timestamps, BOTH),
     **{f"time_one{k}": Kind(time_kind(k, False), BOTH) for k in DELTAS},
     **{f"time_rest{k}": Kind(time_kind(k, True), BOTH) for k in DELTAS},
     "stamp_one": Kind(stamp_one, TL),

@@ -106,6 +106,25 @@ def test_renamed_fmt_column_no_traceback(clean, tmp_path):
     assert res.returncode == 2 or not check_mcap(out)
 
 
+@pytest.mark.parametrize("name", ["IMU", "ATT"])
+@pytest.mark.parametrize("length", [0, 2, 3, 4])
+def test_header_only_fmt_then_a_record_is_a_clean_exit_3(clean, tmp_path, name, length):
+    """An FMT redefining IMU or ATT with an empty Format and Columns and Length 0-4, then a record of that type (its
+    header): Length 3 was an IndexError in the decoder (exit 1); 0-2 and 4 already exited 3."""
+    from replay.fuzz.logs import FMT_BODY, FMT_TYPE
+
+    c = clean["ac313-joeydouglas@0%"]
+    log = c.parsed()
+    f = _fmt_of(c, name)
+    at = log.records[len(log.records) // 2].offset
+    fmt = bytes((0xA3, 0x95, FMT_TYPE)) + FMT_BODY.pack(f.type, length, name.encode(), b"", b"")
+    data = c.data[:at] + fmt + bytes((0xA3, 0x95, f.type)) + c.data[at:]
+    res, _, out = replay_bytes(tmp_path, data)
+    assert "Traceback" not in res.stderr, res.stderr[-800:]
+    assert res.returncode == 3, (res.returncode, res.stderr[-400:])
+    assert not check_mcap(out)
+
+
 def test_imu_float_1e22_no_traceback(clean, tmp_path):
     c = clean["ac313-joeydouglas@0%"]
     log = c.parsed()
@@ -231,3 +250,34 @@ def test_inspect_reports_chunk_crc_failure(clean, tmp_path):
     first = ins.stdout.splitlines()[0] if ins.stdout else ""
     assert "Traceback" not in ins.stderr
     assert ", finalised)" not in first, first
+
+
+@pytest.mark.parametrize("distinct", [False, True])
+def test_repeated_timestamps_keep_memory_flat(clean, tmp_path, distinct):
+    """One IMU record repeated 200,000 times in place (one time stamp; ``distinct``: each with its own AccX, so no
+    copy is a duplicate): peak RSS within 1.5 x the clean input's + 20 MiB (it was 2 x: the reorder buffer held every
+    event sharing the newest time, none ever older than its horizon)."""
+    from replay.fuzz.runner import replay_args, run_subprocess
+
+    c = clean["ac33dev-log171@45%"]
+    log = c.parsed()
+    r = log.records[log.records_named(["IMU"])[len(log.records_named(["IMU"])) // 2]]
+    rec = c.data[r.offset:r.offset + log.formats[r.type].length]
+    n = 200_000
+    if distinct:
+        buf = bytearray(rec * n)
+        step = len(rec)
+        for k in range(n):
+            log.put(buf, type(r)(k * step, r.type), "AccX", float(k % 997) * 1e-3)
+        reps = bytes(buf)
+    else:
+        reps = rec * n
+    mutant = tmp_path / "rep.bin"
+    mutant.write_bytes(c.data[:r.offset] + reps + c.data[r.offset:])
+    base = tmp_path / "clean.bin"
+    base.write_bytes(c.data)
+    clean_run = run_subprocess(replay_args(base, tmp_path / "c.mcap"), timeout_s=300, workdir=tmp_path)
+    res = run_subprocess(replay_args(mutant, tmp_path / "m.mcap"), timeout_s=300, workdir=tmp_path)
+    assert res.returncode == 0 and "Traceback" not in res.stderr, res.stderr[-600:]
+    assert not check_mcap(tmp_path / "m.mcap")
+    assert res.maxrss_kb <= 1.5 * clean_run.maxrss_kb + 20 * 1024, (res.maxrss_kb // 1024, clean_run.maxrss_kb // 1024)

@@ -114,7 +114,7 @@ def test_messages_from_other_systems_are_dropped():
 
 def test_reorder_buffer_orders_within_horizon_and_is_stable():
     buf = ReorderBuffer(0.5)
-    evs = [Attitude(t, 0, 0, 0) for t in (1.0, 1.2, 1.1, 1.1, 2.0, 1.9, 3.0)]
+    evs = [Attitude(t, 0.01 * k, 0, 0) for k, t in enumerate((1.0, 1.2, 1.1, 1.1, 2.0, 1.9, 3.0))]
     out = []
     for e in evs:
         out += buf.push(e)
@@ -122,6 +122,15 @@ def test_reorder_buffer_orders_within_horizon_and_is_stable():
     assert [e.t_s for e in out] == sorted(e.t_s for e in evs)
     assert out[1] is evs[2] and out[2] is evs[3]  # equal times keep arrival order
     assert buf.late == 0
+
+
+def test_reorder_buffer_drops_repeats_and_holds_a_bounded_number():
+    buf = ReorderBuffer(0.5, max_held=100)
+    same = [Attitude(5.0, 0.1, 0.2, 0.3) for _ in range(1000)]  # one record repeated: same time, same values
+    assert sum(len(buf.push(e)) for e in same) == 0 and buf.duplicates == 999
+    distinct = [Attitude(5.0, 0.001 * k, 0, 0) for k in range(1, 1001)]  # one time, distinct values: none ages
+    out = [o for e in distinct for o in buf.push(e)]
+    assert len(out) == 901 and buf.forced == 901 and len(buf.flush()) == 100
 
 
 def test_reboot_keeps_the_downtime_when_receive_times_are_known():
