@@ -10,8 +10,7 @@ refuses: integers beyond 64 bits), so the same input gives byte-identical payloa
 versions, a byte-identical file). orjson spells some floats differently from ``json`` (``1e-7`` for ``1e-07``); the
 values are the same (tests/record/test_fast_messages.py).
 
-Durability. A killed process (SIGKILL, OOM, power cut after the OS wrote its cache) loses only the chunk
-in progress:
+Durability. A killed process (SIGKILL, OOM, power cut after the OS wrote its cache) loses only the chunk in progress:
 
 * A chunk is closed with ``Writer.flush()`` (public API: finalises the chunk, writes it and its message
   indexes, flushes the stream) when ``flush_interval_s`` of *message* time has passed since its first
