@@ -94,7 +94,7 @@ class GravityConfig:
     matcher: str = "viterbi"  # viterbi | knn | iccp (window matchers) | sequential (every reading, slow vehicles)
     named_value: str = "GRAV"  # NAMED_VALUE_FLOAT.name of the readings (1-10 characters)
     # false: the readings still hold the Eotvos term (a gravimeter that does not know the vehicle's velocity); the
-    # gravity stage corrects them with the navigator's velocity
+    # gravity stage corrects them with the navigator's velocity (as flown on ArduPlane SITL: docs/decisions/0012)
     eotvos_corrected: bool = True
     sigma_mgal: float = 1.0  # gravimeter noise per reading (matcher likelihood, acceptance test)
     feed_spacing_m: float = 0.0  # average readings over this much track per matcher sample; 0: one map cell

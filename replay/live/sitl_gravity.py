@@ -313,7 +313,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--param", action="append", metavar="NAME=VALUE", help="extra SITL parameter for every arm")
     p.add_argument("--companion-set", action="append", metavar="SECTION.KEY=VALUE")
     p.add_argument("--outdir", default="out/sitl_gravity")
+    p.add_argument("--results", metavar="NAME", help="also write replay/results/sitl_gravity_NAME.md and its plot")
+    p.add_argument("--from-dir", metavar="DIR", help="analyse the flights kept in DIR (a finished run's --outdir) again, "
+                   "with that run's options, instead of flying")
     a = p.parse_args(argv)
+    prior = None
+    if a.from_dir:
+        prior = json.loads((Path(a.from_dir) / "summary.json").read_text())
+        results, from_dir = a.results, a.from_dir
+        argv = [x for x in prior["run"]["argv"]]
+        a = p.parse_args(argv)
+        a.results, a.outdir = results, from_dir
     try:
         a.sitl_bin_path = resolve_bin(a.sitl_bin, BIN_ENV[a.vehicle])
     except HarnessError as e:
@@ -337,14 +347,21 @@ def main(argv: list[str] | None = None) -> int:
     started, load_before = time.strftime("%Y-%m-%d %H:%M:%S %Z"), machine_state()
     print(f"survey: {a.survey}; map along it: {sig}; {load_before}", flush=True)
     a.alone_instance = free_instance()
-    if a.jobs > 1 and len(a.arms) > 1:
+    if prior is not None:
+        run0 = prior["run"]
+        started, load_before = run0["started"], run0["load_before"]
+        flown = {arm: {"log": core.FlightLog.from_dict(json.loads((a.outdir / arm / "log.json").read_text())),
+                       "notes": s["notes"], "wall_s": s["wall_s"], "work": a.outdir / arm}
+                 for arm, s in prior["arms"].items()}
+    elif a.jobs > 1 and len(a.arms) > 1:
         with ThreadPoolExecutor(len(a.arms)) as ex:
             futs = {arm: ex.submit(fly, a, arm) for arm in a.arms}
             flown = {arm: f.result() for arm, f in futs.items()}
     else:
         flown = {arm: fly(a, arm) for arm in a.arms}
     summary = summarise(a, flown)
-    summary["run"] = {"argv": argv, "started": started, "load_before": load_before, "load_after": machine_state(),
+    load_after = prior["run"]["load_after"] if prior is not None else machine_state()
+    summary["run"] = {"argv": argv, "started": started, "load_before": load_before, "load_after": load_after,
                       "sitl": f"{a.sitl_bin_path} ({sitl_commit(a.sitl_bin_path)})", "speedup": a.speedup,
                       "defaults": [str(d) for d in a.defaults], "map_along_survey": sig,
                       "params": {arm: arm_params(a, arm) for arm in a.arms},
@@ -358,6 +375,8 @@ def main(argv: list[str] | None = None) -> int:
     rep.plot(a, flown, a.outdir / "error.png")
     print(table)
     print(f"wrote {a.outdir / 'summary.json'}, table.md, error.png")
+    if a.results:
+        rep.write_results(a, summary, table, a.outdir / "error.png", REPO / "replay" / "results")
     return 0 if all(s["kept_up"] for s in summary["arms"].values()) else 3
 
 

@@ -109,3 +109,54 @@ def plot(a, flown: dict, png) -> None:
     fig.tight_layout()
     fig.savefig(png, dpi=110)
     plt.close(fig)
+
+
+def write_results(a, summary: dict, table_text: str, png, results_dir) -> None:
+    """replay/results/sitl_gravity_NAME.md (+ its plot): the command, where and how it ran, the set-up, the table."""
+    import shutil
+    from pathlib import Path
+
+    run = summary["run"]
+    name = f"sitl_gravity_{a.results}"
+    shutil.copyfile(png, Path(results_dir) / f"{name}.png")
+    vehicle = "ArduPlane" if a.vehicle == "plane" else "ArduRover (motorboat)"
+    lines = [
+        f"# Gravity aiding on {vehicle} SITL: {Path(run['sitl']).name.split(' ')[0]} over {a.map_path.name} from "
+        f"{a.origin}, seed {a.seed}",
+        "",
+        f"`nice -n 5 python -m replay.live.sitl_gravity {' '.join(run['argv'])}`",
+        "",
+        f"SITL {run['sitl']}, speed-up {run['speedup']:g}; started {run['started']}; machine before: "
+        f"{run['load_before']}, after: {run['load_after']} (shared with other work). ArduPilot's defaults "
+        f"{', '.join(Path(d).name for d in run['defaults'])}, then the harness's parameters, each read back from the "
+        "autopilot before take-off:",
+        "",
+    ]
+    for arm, params in run["params"].items():
+        lines.append(f"- {arm}: " + ", ".join(f"{k}={v:g}" for k, v in params.items()))
+    sv, sc = run["survey"], run["schedule"]
+    lines += [
+        f"- the companion: `companion run --inject inject --gps-id 1` with `--set {' '.join(run['companion_sets'])}`"
+        if run["companion_sets"] else "",
+        "",
+        f"Mission: take-off, then {sv['lines']} lines of {sv['line_km']:g} km {sv['spacing_km']:g} km apart from "
+        f"{a.origin} (first line heading {sv['heading_deg']:g} deg) at {sv['alt_m']:g} m, flown over and over; map "
+        f"along the lines: STD {run['map_along_survey']['std_mgal']:.1f} mGal, mean gradient "
+        f"{run['map_along_survey']['grad_mgal_per_km']:.2f} mGal/km. Schedule from the survey start: GNSS "
+        f"{sc['healthy_min']:g} min, denied (SIM_GPS1_ENABLE 0) {sc['denial_min']:g} min, back {sc['back_min']:g} "
+        f"min. Weather: SIM_WIND_SPD {sc['wind_mps']:g} m/s from {sc['wind_dir_deg']:g} deg, SIM_WIND_TURB "
+        f"{sc['turb_mps']:g} m/s, the wind turning by {sc['wind_turn_deg']:g} deg every {sc['wind_turn_min']:g} min of "
+        "the denial; SITL's airspeed sensor with its default noise. Gravimeter (companion.sim.sitl_gravimeter_link, "
+        "on SERIAL2, its NAMED_VALUE_FLOAT routed by the autopilot): the map at SITL's true position + the real "
+        "ship-minus-satellite misfit + 1 mGal white noise + the Eotvos term at the true velocity + a seeded bias "
+        "(2 mGal sigma) and drift (0.5 mGal/h sigma), filtered over 30 s, 1 Hz.",
+        "",
+        "Truth: SIMSTATE; EKF error: GLOBAL_POSITION_INT against the truth at its time. A run is valid only if the "
+        "harness's truth stream has no gap over 2 s and the companion processed every input within "
+        "inject.max_lag_s of its arrival (its `lag` summary line).",
+        "",
+        table_text,
+        "",
+        f"![EKF error over the flight]({name}.png)",
+    ]
+    (Path(results_dir) / f"{name}.md").write_text("\n".join(x for x in lines if x is not None) + "\n")

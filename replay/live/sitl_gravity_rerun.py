@@ -93,6 +93,46 @@ def rerun(arm_dir: Path, sets: list[str]) -> dict:
             "within_2hacc": float(np.mean(err[d3] <= 2 * hacc[d3])) if d3.any() else math.nan}
 
 
+def _dcm(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    cr, sr, cp, sp, cy, sy = (f(x) for x in (roll, pitch, yaw) for f in (math.cos, math.sin))
+    return np.array([[cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy],
+                     [cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy], [-sp, sr * cp, cr * cp]])
+
+
+def imu_attitude_residual(mcap: Path, t0_s: float, t1_s: float, g_mps2: float = 9.80665) -> dict[str, float]:
+    """Whether the autopilot's IMU (RAW_IMU) and attitude (ATTITUDE) agree with its GNSS: mean over [t0, t1) of the
+    1 s mean specific force rotated to NED by ATTITUDE, plus gravity, minus the GNSS velocity change over that second
+    (m/s^2), north/east/down and along/across the heading. Zero when the three are consistent; an INS that fuses this
+    attitude with these samples accelerates by the along/across figures once GNSS is gone."""
+    imu, att, gn = [], [], []
+    for topic, _t, data in __import__("companion.record.inspect", fromlist=["iter_payloads"]).iter_payloads(mcap):
+        if topic not in ("/input/imu", "/input/attitude", "/input/gnss"):
+            continue
+        d = json.loads(data)
+        if topic == "/input/imu":
+            imu.append([d["t_s"], *d["accel_frd_mps2"]])
+        elif topic == "/input/attitude":
+            att.append([d["t_s"], d["roll_rad"], d["pitch_rad"], d["yaw_rad"]])
+        elif d.get("vel_n_mps") is not None:
+            gn.append([d["t_s"], d["vel_n_mps"], d["vel_e_mps"], d.get("vel_d_mps") or 0.0])
+    imu_a, att_a, gn_a = np.array(imu), np.array(att), np.array(gn)
+    rows = []
+    for t in np.arange(t0_s, t1_s, 1.0):
+        sel = (imu_a[:, 0] >= t - 0.5) & (imu_a[:, 0] < t + 0.5)
+        if not sel.any():
+            continue
+        r, p, y = (float(np.interp(t, att_a[:, 0], att_a[:, k])) for k in (1, 2, 3))
+        dv = np.array([np.interp(t + 0.5, gn_a[:, 0], gn_a[:, k]) - np.interp(t - 0.5, gn_a[:, 0], gn_a[:, k])
+                       for k in (1, 2, 3)])
+        res = _dcm(r, p, y) @ imu_a[sel, 1:].mean(axis=0) + np.array([0.0, 0.0, g_mps2]) - dv
+        rows.append([*res, y])
+    a = np.array(rows)
+    along = a[:, 0] * np.cos(a[:, 3]) + a[:, 1] * np.sin(a[:, 3])
+    across = -a[:, 0] * np.sin(a[:, 3]) + a[:, 1] * np.cos(a[:, 3])
+    return {"north": float(a[:, 0].mean()), "east": float(a[:, 1].mean()), "down": float(a[:, 2].mean()),
+            "along": float(along.mean()), "across": float(across.mean()), "seconds": len(a)}
+
+
 def main(argv: list[str] | None = None) -> int:
     from replay.live.sitl_gravity import COMPANION_SETS, VEHICLE_SETS
 
@@ -102,8 +142,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--vehicle", choices=tuple(VEHICLE_SETS), default="plane")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="on top of the run's companion settings (replay.live.sitl_gravity.COMPANION_SETS)")
+    p.add_argument("--imu-check", metavar="T0,T1", help="only the IMU/attitude/GNSS consistency over boot seconds T0..T1")
     a = p.parse_args(argv)
     arm = Path(a.dir)
+    if a.imu_check:
+        t0, t1 = (float(x) for x in a.imu_check.split(","))
+        r = imu_attitude_residual(arm / "companion.mcap", t0, t1)
+        print("IMU rotated by ATTITUDE + gravity - GNSS acceleration (m/s^2), mean over "
+              f"{r['seconds']} s: N {r['north']:+.3f} E {r['east']:+.3f} D {r['down']:+.3f}; along the heading "
+              f"{r['along']:+.3f}, across {r['across']:+.3f}")
+        return 0
     if not (arm / "companion.mcap").exists() or not (arm / "log.json").exists():
         print(f"no companion.mcap and log.json in {arm}", file=sys.stderr)
         return 2
