@@ -129,11 +129,13 @@ class InsFilter:
         F0, eye15, q_per_s = self._model
         F = F0.copy()
         F[3:6, 6:9] = -skew(f)
-        F[3:6, 9:12] = -C
-        F[6:9, 12:15] = -C
+        F[3:6, 9:12] = F[6:9, 12:15] = -C
         Fd = F * dt
         phi = eye15 + Fd + 0.5 * Fd @ Fd
-        self.kf.predict(F=phi, Q=np.diag(q_per_s * dt))
+        kf = self.kf  # P = phi P phi' + Q dt; the error state x is zero between updates, and stays so
+        P = phi @ kf.P @ phi.T
+        P.flat[::16] += q_per_s * dt
+        kf.P = P
         self.t_s = t
 
     # ------------------------------------------------------------------ measurements
@@ -145,14 +147,16 @@ class InsFilter:
         y, H, R = m.compute_ins(InsView(pos, vel, self.strapdown.dcm()))
         kf = self.kf
         Rg = m.R_gate()
-        nis, ok = gate(y, H @ kf.P @ H.T + (R if Rg is None else np.maximum(R, Rg)), m.gate_chi2)
+        PHT = kf.P @ H.T
+        HPHT = H @ PHT
+        nis, ok = gate(y, HPHT + (R if Rg is None else np.maximum(R, Rg)), m.gate_chi2)
         self._emit(
             MeasurementUpdate(m.t_s, m.kind, "ins", tuple(y.tolist()), tuple(np.sqrt(R.diagonal()).tolist()), nis,
                               m.gate_chi2, ok)
         )
         if not ok:
             return False, y
-        kf.update(y.reshape(-1, 1), R=R, H=H, gain_rows=m.gain_rows_ins())
+        kf.update_innovation(y, R, H, PHT, HPHT + R, m.gain_rows_ins())  # (x is zero between updates: y = z - H x)
         dx = kf.x.ravel().tolist()  # Python floats: the strapdown INS (plain Python, every IMU sample) then runs on
         # floats rather than numpy scalars, which are several times slower per operation
         self.correct(dx[0:3], dx[3:6], dx[6:9], dx[9:12], dx[12:15])

@@ -45,3 +45,14 @@ class KalmanFilter:
         self.x = self.x + np.dot(K, y)
         I_KH = self._I - np.dot(K, H)
         self.P = np.dot(np.dot(I_KH, self.P), I_KH.T) + np.dot(np.dot(K, R), K.T)
+
+    def update_innovation(self, y: np.ndarray, R: np.ndarray, H: np.ndarray, PHT: np.ndarray, S: np.ndarray,
+                          gain_rows: np.ndarray | None = None) -> None:
+        """:meth:`update` given what the caller already has: the innovation ``y = z - H x`` (flat), ``PHT = P H'`` and
+        ``S = H P H' + R`` (a gate computed them); the same Joseph-form algebra."""
+        K = np.dot(PHT, inverse(S))
+        if gain_rows is not None:
+            K = K * gain_rows.reshape(-1, 1)
+        self.x = self.x + np.dot(K, y).reshape(-1, 1)
+        I_KH = self._I - np.dot(K, H)
+        self.P = np.dot(np.dot(I_KH, self.P), I_KH.T) + np.dot(np.dot(K, R), K.T)
