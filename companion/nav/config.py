@@ -30,6 +30,9 @@ class NavigatorConfig:
     rate_window_s: float = 2.0
     imu_timeout_s: float = 3.0  # no IMU for this long in INS mode -> kinematic fallback
     max_imu_step_s: float = 0.1  # longer IMU gaps are not integrated through (covariance inflated)
+    # the strapdown steps at most this often: faster IMU samples are summed between its steps with coning and sculling
+    # corrections (companion.nav.imu_accumulator); samples at or below it each step it (docs/decisions/0013)
+    ins_rate_hz: float = 50.0
     reorder_window_s: float = 0.25
     # KNN predictor points fused between fixes and through a blockage, sigma x predictor_sigma_scale, the k-th point
     # after a fix with its variance x k (predictor_decorrelate): they share the fix's error (docs/decisions/0002)
@@ -143,7 +146,7 @@ class NavigatorConfig:
     future_confirm_n: int = 3
 
     def __post_init__(self) -> None:
-        if self.output_rate_hz <= 0 or self.min_imu_rate_hz <= 0:
+        if self.output_rate_hz <= 0 or self.min_imu_rate_hz <= 0 or self.ins_rate_hz <= 0:
             raise ValueError("rates must be positive")
         if self.reinit_gap_s <= self.max_imu_step_s or self.future_outlier_s <= 0 or self.future_confirm_n < 1:
             raise ValueError("reinit_gap_s must exceed max_imu_step_s; future_outlier_s > 0, future_confirm_n >= 1")

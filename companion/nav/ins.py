@@ -172,12 +172,22 @@ class StrapdownIns:
         dt = t_s - self.t_s
         if dt <= 0.0:
             return 0.0
-        ax = accel_frd_mps2[0] - self.ba[0]
-        ay = accel_frd_mps2[1] - self.ba[1]
-        az = accel_frd_mps2[2] - self.ba[2]
-        gx = gyro_frd_radps[0] - self.bg[0]
-        gy = gyro_frd_radps[1] - self.bg[1]
-        gz = gyro_frd_radps[2] - self.bg[2]
+        ba, bg = self.ba, self.bg
+        f_b = (accel_frd_mps2[0] - ba[0], accel_frd_mps2[1] - ba[1], accel_frd_mps2[2] - ba[2])
+        rot = ((gyro_frd_radps[0] - bg[0]) * dt, (gyro_frd_radps[1] - bg[1]) * dt, (gyro_frd_radps[2] - bg[2]) * dt)
+        return self._advance(t_s, dt, rot, f_b, None)
+
+    def step_increments(self, t_s: float, rot_frd_rad, dv_frd_mps) -> float:
+        """Advance to ``t_s`` by summed increments (companion.nav.imu_accumulator, bias-corrected): the body's rotation
+        vector over the interval and the velocity increment in the body frame at its start; returns dt."""
+        dt = t_s - self.t_s
+        if dt <= 0.0:
+            return 0.0
+        return self._advance(t_s, dt, rot_frd_rad, None, dv_frd_mps)
+
+    def _advance(self, t_s: float, dt: float, rot, f_b, dv_b) -> float:
+        """The mechanisation over dt: body rotation ``rot``; specific force ``f_b`` held over the interval (resolved
+        with the mid-interval attitude) or velocity increment ``dv_b`` (resolved with the attitude at its start)."""
         # the Earth's radii, rates and gravity at this latitude (nav_rates(), radii(), gravity() with one sin and cos)
         lat, h = self.lat_rad, self.h_m
         sl, cl = math.sin(lat), math.cos(lat)
@@ -190,15 +200,17 @@ class StrapdownIns:
         win_n, win_e, win_d = wie_n + wen_n, wie_e + wen_e, wie_d + wen_d
         # attitude: body rotation on the right, navigation-frame rotation on the left
         q_old = self.q
-        q = _qmul(q_old, _qrotvec(gx * dt, gy * dt, gz * dt))
+        q = _qmul(q_old, _qrotvec(rot[0], rot[1], rot[2]))
         q = _qmul(_qrotvec(-win_n * dt, -win_e * dt, -win_d * dt), q)
         n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
         q = (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
-        # specific force resolved with the mid-interval attitude
-        qm = (q_old[0] + q[0], q_old[1] + q[1], q_old[2] + q[2], q_old[3] + q[3])
-        nm = math.sqrt(qm[0] ** 2 + qm[1] ** 2 + qm[2] ** 2 + qm[3] ** 2)
-        qm = (qm[0] / nm, qm[1] / nm, qm[2] / nm, qm[3] / nm)
-        fn, fe, fd = _rot(qm, ax, ay, az)
+        if dv_b is None:  # specific force resolved with the mid-interval attitude
+            qm = (q_old[0] + q[0], q_old[1] + q[1], q_old[2] + q[2], q_old[3] + q[3])
+            nm = math.sqrt(qm[0] ** 2 + qm[1] ** 2 + qm[2] ** 2 + qm[3] ** 2)
+            qm = (qm[0] / nm, qm[1] / nm, qm[2] / nm, qm[3] / nm)
+            fn, fe, fd = _rot(qm, f_b[0], f_b[1], f_b[2])
+        else:  # the increment (rotation and sculling compensated) is in the body frame at the start
+            fn, fe, fd = _rot(q_old, dv_b[0] / dt, dv_b[1] / dt, dv_b[2] / dt)
         self.f_ned = (fn, fe, fd)
         # Coriolis + transport: (2 w_ie + w_en) x v
         cn, ce, cd = 2 * wie_n + wen_n, 2 * wie_e + wen_e, 2 * wie_d + wen_d

@@ -25,6 +25,7 @@ from companion.events import Attitude, Event
 from companion.nav.config import NavigatorConfig
 from companion.nav.frame import LocalFrame
 from companion.nav.gnss_lag import GnssLatency
+from companion.nav.imu_accumulator import ImuAccumulator
 from companion.nav.ins import StrapdownIns, quat_from_euler
 from companion.nav.kalman import KalmanFilter
 from companion.nav.measurements import InsView, Measurement, gate, skew
@@ -81,11 +82,39 @@ class InsFilter:
         self._f_sum = [0.0, 0.0, 0.0]
         self._f_n = 0
         self._model = _model(c)
+        self._acc = ImuAccumulator()
+        self._step_s = 1.0 / c.ins_rate_hz
 
     # ------------------------------------------------------------------ propagation
     def step_imu(self, t: float, accel_frd_mps2, gyro_frd_radps) -> None:
-        """One IMU sample. A stall longer than ``max_imu_step_s`` (ArduPilot stops logging ~2 s at arming) is not
-        integrated through: the covariance is brought to the stall's start and widened for it."""
+        """One IMU sample. Samples faster than ``ins_rate_hz`` are summed (coning and sculling, ImuAccumulator) and
+        the strapdown steps once per its period; slower ones step it each. A stall longer than ``max_imu_step_s``
+        (ArduPilot stops logging ~2 s at arming) is not integrated through: the covariance is brought to the stall's
+        start and widened for it."""
+        ins, acc = self.strapdown, self._acc
+        dt = t - (acc.t_s if acc.n else ins.t_s)
+        if dt <= 0.0:
+            return
+        if dt >= 0.75 * self._step_s:  # a sample at (or below) the strapdown's rate, or after a stall: a step of its own
+            self.flush_imu()
+            self._step(t, accel_frd_mps2, gyro_frd_radps)
+            return
+        ba, bg = ins.ba, ins.bg
+        acc.add(t, dt, (accel_frd_mps2[0] - ba[0], accel_frd_mps2[1] - ba[1], accel_frd_mps2[2] - ba[2]),
+                (gyro_frd_radps[0] - bg[0], gyro_frd_radps[1] - bg[1], gyro_frd_radps[2] - bg[2]))
+        if acc.dt_s >= self._step_s - 0.5 * dt:  # the step closest to the strapdown's period
+            self.flush_imu()
+
+    def flush_imu(self) -> None:
+        """Step the strapdown by the samples summed since its last step (a measurement or an output needs its state)."""
+        acc = self._acc
+        if acc.n:
+            t = acc.t_s
+            _dt, rot, dv = acc.take()
+            if self.strapdown.step_increments(t, rot, dv) > 0:
+                self._stepped(t)
+
+    def _step(self, t: float, accel_frd_mps2, gyro_frd_radps) -> None:
         c, ins = self.config, self.strapdown
         dt = t - ins.t_s
         if dt > c.max_imu_step_s:
@@ -101,20 +130,26 @@ class InsFilter:
             ins.coast(t - 0.02)
             self.t_s = ins.t_s
         if ins.step(t, accel_frd_mps2, gyro_frd_radps) > 0:
-            if self._keep_s is not None:
-                hist, sh = self._hist, self._shift
-                n, e, d = self.frame.ned_tuple(ins.lat_deg, ins.lon_deg, ins.h_m)
-                hist.append((t, n - sh[0], e - sh[1], d - sh[2], ins.vn - sh[3], ins.ve - sh[4], ins.vd - sh[5]))
-                while hist[0][0] < t - self._keep_s - 0.2:
-                    hist.popleft()
-            f = ins.f_ned
-            self._f_sum[0] += f[0]
-            self._f_sum[1] += f[1]
-            self._f_sum[2] += f[2]
-            self._f_n += 1
+            self._stepped(t)
+
+    def _stepped(self, t: float) -> None:
+        """After a strapdown step to t: its history entry and the specific force for the next covariance step."""
+        ins = self.strapdown
+        if self._keep_s is not None:
+            hist, sh = self._hist, self._shift
+            n, e, d = self.frame.ned_tuple(ins.lat_deg, ins.lon_deg, ins.h_m)
+            hist.append((t, n - sh[0], e - sh[1], d - sh[2], ins.vn - sh[3], ins.ve - sh[4], ins.vd - sh[5]))
+            while hist[0][0] < t - self._keep_s - 0.2:
+                hist.popleft()
+        f = ins.f_ned
+        self._f_sum[0] += f[0]
+        self._f_sum[1] += f[1]
+        self._f_sum[2] += f[2]
+        self._f_n += 1
 
     def predict(self, t: float) -> None:
         """Propagate the error covariance to ``t`` (eq. 9) with the interval's mean specific force."""
+        self.flush_imu()
         dt = t - self.t_s
         if dt <= 0:
             return
@@ -165,6 +200,7 @@ class InsFilter:
 
     def correct(self, dp, dv, psi, dba, dbg) -> None:
         """Feed an error estimate back into the INS and shift the delay history with it."""
+        self.flush_imu()
         self.strapdown.correct(dp, dv, psi, dba, dbg)
         t, cs = self.strapdown.t_s, self._corr_sums
         for a in range(3):

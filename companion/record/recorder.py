@@ -52,6 +52,7 @@ from companion.logsetup import stderr_line
 from companion.record.clock import RecordClock
 from companion.record.fast_messages import fast_add_message
 from companion.record.inspect import RecordError
+from companion.record.payload import _ORJSON_OPTS, _dumps, _dumps_jsonable
 from companion.record.schemas import (
     COV_DIAGONAL_KNOWN,
     COV_KNOWN,
@@ -64,42 +65,12 @@ from companion.record.schemas import (
     LOG_SCHEMA_NAME,
     _plain,
     dataclass_schema,
-    drop_unknown,
     schema_name,
 )
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 _NEVER = 1 << 62  # Writer chunk_size that never triggers: the recorder decides chunk boundaries
 _MESSAGE_OVERHEAD = 1 + 8 + 2 + 4 + 8 + 8  # opcode, record length, channel, sequence, log/publish time
-
-
-_ORJSON_OPTS = orjson.OPT_SERIALIZE_NUMPY
-
-
-def _dumps(d: Any) -> bytes:
-    """Compact JSON of a plain value, every unknown value (None, NaN/inf) left out; orjson, or the standard library
-    for what orjson refuses (an integer beyond 64 bits, a value of another type)."""
-    try:
-        data = orjson.dumps(d, option=_ORJSON_OPTS)  # NaN/inf -> null, like None
-    except TypeError:  # orjson.JSONEncodeError is a TypeError
-        data = None
-    if data is not None and b"null" not in data:
-        return data
-    plain = drop_unknown(_plain(d))
-    try:
-        return orjson.dumps(plain, option=_ORJSON_OPTS)
-    except TypeError:
-        return json.dumps(plain, separators=(",", ":"), allow_nan=False).encode()
-
-
-def _dumps_jsonable(d: Any) -> bytes:
-    """:func:`_dumps` of what ``to_jsonable`` made (plain already: NaN/inf are None): the unknowns dropped at once; a
-    payload that still says null (inside a string, a value not plain after all) takes the general path."""
-    try:
-        data = orjson.dumps(drop_unknown(d), option=_ORJSON_OPTS)
-    except TypeError:
-        return _dumps(d)
-    return data if b"null" not in data else _dumps(d)
 
 
 def _time_ns(t_s: Any) -> int:
