@@ -251,6 +251,21 @@ def _sitl(t: str) -> Headline:
                     target + f"; honesty: {fine} of {len(honest)} met")
 
 
+def _sitl_gravity(t: str) -> Headline:
+    """replay.live.sitl_gravity's results: the EKF error of ArduPilot alone and with the companion over the denial,
+    and its verdicts ("target ...: met" / "MISSED ...")."""
+    alone, comp = (row(t, arm, "mean") for arm in ("alone", "companion"))
+    if "the run is INVALID" in t:
+        return Headline(f"EKF error over the GNSS denial, mean: {comp} m with the companion, {alone} m alone "
+                        "(an arm did not keep up)", "run invalid: not judged")
+    verdicts = re.findall(r"^- .*; target [^:]+: (met|MISSED)", t, re.M)
+    if not verdicts:
+        raise NotFound("no verdicts under 'Against the targets'")
+    ok = verdicts.count("met")
+    return Headline(f"EKF error over the GNSS denial, mean: {comp} m with the companion's gravity aiding, {alone} m "
+                    f"ArduPilot alone", f"{ok} of {len(verdicts)} met")
+
+
 def _paper(t: str) -> Headline:
     return Headline("judged in the reproductions' summary (gravity_summary)")
 
@@ -288,8 +303,21 @@ ENTRIES: dict[str, Entry] = {
 }
 
 
+#: results files named by a prefix (one per run of their benchmark)
+PREFIXES: dict[str, Entry] = {
+    "sitl_gravity_": Entry("ArduPlane / ArduRover SITL with GNSS denied for long: ArduPilot alone against ArduPilot + "
+                           "the companion's sequential gravity filter", _sitl_gravity),
+}
+
+
+def entry_of(path: Path) -> Entry | None:
+    if path.name in ENTRIES:
+        return ENTRIES[path.name]
+    return next((e for prefix, e in PREFIXES.items() if path.name.startswith(prefix)), None)
+
+
 def headline(path: Path) -> Headline:
-    entry = ENTRIES.get(path.name)
+    entry = entry_of(path)
     if entry is None:
         return Headline("see the section")
     try:
@@ -322,7 +350,8 @@ def summary(files: list[Path], title_of: Callable[[Path], str], anchor_of: Calla
              "| benchmark | what it measures | headline | target | plots |", "|---|---|---|---|---|"]
     for p in files:
         h = headline(p)
-        what = ENTRIES[p.name].what if p.name in ENTRIES else ""
+        entry = entry_of(p)
+        what = entry.what if entry else ""
         shown = plots_of(p)
         plots = ", ".join(f"[{q.stem}](replay/results/{q.name})" for q in shown[:MAX_PLOTS]) or "—"
         if len(shown) > MAX_PLOTS:

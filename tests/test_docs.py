@@ -201,6 +201,25 @@ def test_the_summary_reads_a_headline_and_its_verdict(tmp_path):
     assert headline(changed).text.startswith(MISSING)
 
 
+def test_the_summary_reads_the_sitl_gravity_report(tmp_path):
+    """The SITL gravity A/B's results file, as its report writes it, gives a headline and its verdicts."""
+    from replay.benchmark_summary import headline
+    from replay.live.sitl_gravity_report import table
+
+    arm = {"kept_up": True, "error_m_at_min": {"30": 2000.0, "60": 4000.0}, "max_m": 5000.0, "healthy_mean_m": 1.0,
+           "cross_track_mean_m": 10.0, "cross_track_max_m": 20.0, "failsafes": [], "fixes_in_denial": 0}
+    summary = {"arms": {"alone": {**arm, "mean_m": 3000.0},
+                        "companion": {**arm, "error_m_at_min": {"30": 400.0, "60": 900.0}, "mean_m": 800.0,
+                                      "within_2hacc_frac": 0.95, "fixes_in_denial": 600, "return_jump_m": 50.0,
+                                      "last_hacc_m": 80.0, "reconverge_s": 12.0}}}
+    path = tmp_path / "sitl_gravity_plane.md"
+    path.write_text("# Gravity aiding on ArduPlane SITL\n\n" + table(summary, "plane") + "\n")
+    h = headline(path)
+    assert "800 m with the companion" in h.text and "3000 m" in h.text, h
+    verdicts = re.findall(r"target [^:]+: (met|MISSED)", path.read_text())
+    assert h.target == f"{verdicts.count('met')} of {len(verdicts)} met" and len(verdicts) >= 5
+
+
 def _docstrings(tree: ast.AST):
     for node in ast.walk(tree):
         if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
