@@ -51,7 +51,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from companion import units
@@ -72,10 +72,11 @@ from companion.mavlink.gps_input import (  # noqa: F401 - the wire encoding, re-
     encode_gps_input,
     gps_week_from_unix,
 )
+from companion.inject.carry import AccelerationTracker, carry
+from companion.inject.carry import fast_replace as _replace
 from companion.inject.checks import encoded, invalid
 from companion.inject.link_clock import LinkClock
 from companion.inject.receiver_check import ReceiverCrossCheck
-from companion.nav.frame import LocalFrame
 from companion.nav.outputs import MeasurementUpdate, ModeChange, NavigatorReset
 from companion.nav.trust import TrustConfig, TrustMonitor, TrustVerdict
 from companion.pipeline.stage import Stage
@@ -198,7 +199,7 @@ class GpsInputRecord(Event):
     time_week: int
     time_week_ms: int
     yaw_cdeg: int
-    extrapolated_s: float = 0.0  # how far the navigator's state was carried (at its velocity) to the epoch t_s
+    extrapolated_s: float = 0.0  # how far the navigator's state was carried (companion.inject.carry) to the epoch t_s
     topic: ClassVar[str] = "/inject/gps_input"
 
 
@@ -278,6 +279,7 @@ class Injector(Stage):
         # the receiver's recent 3D fixes: (t_s, lat_deg, lon_deg, sigma_h_m, vel_n_mps, vel_e_mps, speed_sigma_mps),
         # velocities None when not given
         self.cross_check = ReceiverCrossCheck(self.config)
+        self.accel = AccelerationTracker()  # the output's acceleration, to carry a state to its epoch
         self._armed: bool | None = None  # the autopilot's HEARTBEAT armed flag (None: never heard)
 
     # -- stage interface ----------------------------------------------------------------------
@@ -288,6 +290,8 @@ class Injector(Stage):
             self._newest_input_t = max(self._newest_input_t, item.t_s)
             if self.arrival_s is not None and not isinstance(item, GnssFix):  # (a fix is stamped when it was solved)
                 self.link_clock.observe(item.t_s, self.arrival_s)
+        if isinstance(item, NavigatorReset):
+            self.accel.reset()  # (the velocity jumps: no motion to carry a state with)
         verdicts: list[Event] = []
         if self.trust is not None and isinstance(item, _TRUST_INPUTS):
             verdicts = self.trust.observe(item)
@@ -313,6 +317,7 @@ class Injector(Stage):
             self._gnss_time = None
             self._last_out_t = None
             self.link_clock.reset()
+            self.accel.reset()
             self.reboots += 1
             return [InjectorState(item.t_s, self._active, "autopilot rebooted")]
         return []
@@ -396,6 +401,7 @@ class Injector(Stage):
     def _on_state(self, s: FusedState) -> list[Event]:
         c = self.config
         out: list[Event] = []
+        accel = self.accel.observe(s)
         if self._aids and _finite(s.t_s) and not self._aids.isdisjoint(s.measurement.split("+")):
             self._last_aid_t = s.t_s
         if (
@@ -428,7 +434,7 @@ class Injector(Stage):
         if why:
             return out + self._drop(s.t_s, why)
         carried_s = tgt - s.t_s
-        s = _carry(s, tgt)
+        s = carry(s, tgt, accel)
         why = self.cross_check.disagreement(s)
         if why:
             return out + self._drop(s.t_s, why)
@@ -554,37 +560,5 @@ class Injector(Stage):
 _TRUST_INPUTS = (FusedState, GnssFix, MeasurementUpdate, NavigatorReset, ModeChange)
 
 
-def _carry(s: FusedState, t_s: float) -> FusedState:
-    """The state carried to epoch ``t_s`` at its own velocity: over the ~0.1 s between a final navigator state and the
-    epoch ArduPilot assumes, a 2 m/s^2 acceleration leaves 1 cm (0.25 m at the max_lag_s bound of 0.5 s)."""
-    dt = t_s - s.t_s
-    if dt == 0.0:
-        return s
-    lat, lon, alt = LocalFrame(s.lat_deg, s.lon_deg, s.alt_msl_m).to_geodetic(
-        (s.vel_n_mps * dt, s.vel_e_mps * dt, s.vel_d_mps * dt))
-    return _replace(s, t_s=t_s, lat_deg=float(lat), lon_deg=float(lon), alt_msl_m=float(alt),
-                   north_m=s.north_m + s.vel_n_mps * dt, east_m=s.east_m + s.vel_e_mps * dt,
-                   down_m=s.down_m + s.vel_d_mps * dt, age_since_fix_s=s.age_since_fix_s + dt)
-
-
 def _replace_sent(rec: GpsInputRecord) -> GpsInputRecord:
     return _replace(rec, sent=True)
-
-
-_INIT_FIELDS: dict[type, tuple[str, ...] | None] = {}  # None: a class with keyword-only or non-init fields
-_NAME_SETS: dict[type, frozenset[str]] = {}
-_UNSEEN = object()
-
-
-def _replace(obj: Any, **changes: Any) -> Any:
-    """``dataclasses.replace(obj, **changes)``, the same object built positionally from cached field names
-    (``replace`` walks the fields and builds keywords each time: a fifth of the injector's work a state)."""
-    cls = type(obj)
-    names = _INIT_FIELDS.get(cls, _UNSEEN)
-    if names is _UNSEEN:
-        fs = fields(cls)
-        names = _INIT_FIELDS[cls] = tuple(f.name for f in fs) if all(f.init and not f.kw_only for f in fs) else None
-        _NAME_SETS[cls] = frozenset(names or ())
-    if names is None or not changes.keys() <= _NAME_SETS[cls]:  # (what replace itself refuses, it says why)
-        return replace(obj, **changes)
-    return cls(*[changes[n] if n in changes else getattr(obj, n) for n in names])

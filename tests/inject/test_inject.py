@@ -489,7 +489,8 @@ def test_any_field_at_any_value_is_dropped_or_clamped_never_raised():
 
 
 def test_fast_replace_builds_what_dataclasses_replace_builds():
-    from companion.inject.gps_input import _carry, _replace, _replace_sent
+    from companion.inject.carry import carry as _carry
+    from companion.inject.gps_input import _replace, _replace_sent
 
     s = state()
     changed = dict(t_s=11.0, lat_deg=-35.0, north_m=1.5, age_since_fix_s=0.3)
