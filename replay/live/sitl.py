@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import signal
 import subprocess
 import sys
 import tempfile
@@ -437,6 +438,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if a.from_dir:
         return reanalyse(a, Path(a.from_dir))
+    # SIGTERM unwinds like Ctrl-C, through the finally blocks that stop SITL and the companion: a companion left
+    # running would reconnect to the next SITL on the same ports and take its serial port from the next flight
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(128 + signal.SIGTERM))
     started = time.strftime("%Y-%m-%d %H:%M:%S %Z")
     load_before = machine_state()
     work = Path(tempfile.mkdtemp(prefix="sitl_ab_"))
