@@ -83,6 +83,8 @@ def plot(a, flown: dict, png) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    import numpy as np
+
     from replay.live import sitl_core as core
 
     fig, ax = plt.subplots(figsize=(10, 4.5))
@@ -94,7 +96,8 @@ def plot(a, flown: dict, png) -> None:
         on = log.marks.get("deny_on")
         if on is None or len(t) == 0:
             continue
-        ax.plot((t - on) / 60.0, err / 1000.0, color=c, lw=0.8, label=f"{name}: EKF3 error")
+        sel = t >= log.marks.get("route", on)  # from the survey's start (before take-off EKF3 has no origin)
+        ax.plot((t[sel] - on) / 60.0, np.maximum(err[sel], 0.1) / 1000.0, color=c, lw=0.8, label=f"{name}: EKF3 error")
     for name in flown:
         log = flown[name]["log"]
         if "deny_on" in log.marks and "deny_off" in log.marks:
@@ -102,6 +105,7 @@ def plot(a, flown: dict, png) -> None:
             break
     ax.set_xlabel("minutes after GNSS was denied (shaded: denial)")
     ax.set_ylabel("EKF horizontal error (km)")
+    ax.set_yscale("log")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="upper left", fontsize=8)
     ax.set_title(f"ArduPilot {a.vehicle} SITL over {a.map_path.name} from {a.origin}, seed {a.seed}, x{a.speedup:g}",
