@@ -102,8 +102,8 @@ def _dcm(roll: float, pitch: float, yaw: float) -> np.ndarray:
 def imu_attitude_residual(mcap: Path, t0_s: float, t1_s: float, g_mps2: float = 9.80665) -> dict[str, float]:
     """Whether the autopilot's IMU (RAW_IMU) and attitude (ATTITUDE) agree with its GNSS: mean over [t0, t1) of the
     1 s mean specific force rotated to NED by ATTITUDE, plus gravity, minus the GNSS velocity change over that second
-    (m/s^2), north/east/down and along/across the heading. Zero when the three are consistent; an INS that fuses this
-    attitude with these samples accelerates by the along/across figures once GNSS is gone."""
+    (m/s^2), north/east/down and along/across the heading. Zero when the three are consistent; otherwise what an INS
+    integrating these samples with this attitude would see beyond the vehicle's real acceleration."""
     imu, att, gn = [], [], []
     for topic, _t, data in __import__("companion.record.inspect", fromlist=["iter_payloads"]).iter_payloads(mcap):
         if topic not in ("/input/imu", "/input/attitude", "/input/gnss"):
