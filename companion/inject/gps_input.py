@@ -133,9 +133,11 @@ class InjectConfig:
     floor_to_receiver: bool = True  # accuracies >= the receiver's last reported h_acc/v_acc (or DOP x uere_m)
     max_lag_s: float = 0.5  # a state this far behind the newest sensor event is stale: not sent
     # the measurement lag the autopilot assumes for this GPS instance: ArduPilot's EKF fuses a GPS message as the
-    # vehicle ``GPSn_DELAY_MS`` before its arrival (0 there: the driver's default, 0.2 s for a MAVLink GPS). Each
-    # GPS_INPUT therefore describes the vehicle at (newest sensor time - autopilot_lag_s): the navigator's state,
-    # final only once the reorder window has passed, is carried forward to that epoch at its own velocity
+    # vehicle ``GPSn_DELAY_MS`` before its arrival (0 there: the driver's default, 0.2 s for a MAVLink GPS), but never
+    # further back than its delay buffer, which EKF3 sizes by the *primary* GPS's lag (0.12 s for a u-blox M8 or
+    # newer): set GPSn_DELAY_MS to this value and at most the primary's lag (the recommended set-up: 100 ms, 0.1 s).
+    # Each GPS_INPUT describes the vehicle at (newest sensor time - autopilot_lag_s): the navigator's state, final
+    # once the reorder window has passed, is carried to that epoch (companion.inject.carry)
     autopilot_lag_s: float = 0.2
     consistency_chi2: float = CHI2_2DOF_999  # gate of the receiver cross-check (chi-square, 2 dof, 99.9 %)
     consistency_window_s: float = 0.5  # cross-check against receiver fixes at most this old

@@ -66,15 +66,16 @@ VEHICLE_PARAMS = {"FRAME_CLASS": 1, "FRAME_TYPE": 0, "FENCE_ENABLE": 0, "FS_THR_
 DR_FAILSAFE_PARAMS = {"FS_DR_ENABLE": 2, "FS_DR_TIMEOUT": 30}
 #: B and BD: the set-up of docs/ardupilot.md (instance 2 = MAVLink; GPS1 primary, GPS2 taken only when GPS1 has no 3D fix)
 COMPANION_PARAMS = {
-    "GPS2_TYPE": 14, "GPS_AUTO_SWITCH": 4, "GPS_PRIMARY": 0, "SERIAL1_PROTOCOL": 2,
+    "GPS2_TYPE": 14, "GPS2_DELAY_MS": 100, "GPS_AUTO_SWITCH": 4, "GPS_PRIMARY": 0, "SERIAL1_PROTOCOL": 2,
     "EK3_SRC1_POSXY": 3, "EK3_SRC1_VELXY": 3, "EK3_SRC1_POSZ": 1, "EK3_SRC1_VELZ": 3,
 }
 #: B's companion settings besides --companion-set (systemd/companion.toml recommends the same): the takeover, the GNSS
-#: latency measured online, the autopilot's heading fused, no fix while armed beside a healthy GPS1, and no motion prior
+#: latency measured online, the autopilot's heading fused, no fix while armed beside a healthy GPS1, no motion prior
 #: (its hold/constant-velocity blend widens the stated accuracy of an INS that carries the vehicle, without making it
-#: more accurate: docs/decisions/0001-takeover-trust.md)
+#: more accurate: docs/decisions/0001-takeover-trust.md), and fixes for the epoch GPS2_DELAY_MS = 100 tells EKF3
 COMPANION_SETS = ['inject.activate="takeover"', "navigator.gnss_delay_estimate=true",
-                  "navigator.fuse_attitude_yaw=true", "inject.backup_fix_when_armed=false", "navigator.motion_prior=false"]
+                  "navigator.fuse_attitude_yaw=true", "inject.backup_fix_when_armed=false", "navigator.motion_prior=false",
+                  "inject.autopilot_lag_s=0.1"]
 STREAMS_HZ = {  # requested on the harness's own link (SERIAL0) with SET_MESSAGE_INTERVAL
     "GLOBAL_POSITION_INT": 25, "SIMSTATE": 50, "ATTITUDE": 50, "LOCAL_POSITION_NED": 10, "GPS_RAW_INT": 5,
     "GPS2_RAW": 5, "EKF_STATUS_REPORT": 2, "SYS_STATUS": 1, "HEARTBEAT": 1,
