@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import logging
+import os
 import signal
 import sys
 from pathlib import Path
@@ -20,6 +20,7 @@ from companion.console import progress_bar as _progress_bar
 from companion.console import short_label as _short_label
 from companion.console import summary_line as _summary_line
 from companion.console import warn_quietly as _warn_quietly
+from companion.cli_args import MIN_STATUS_EVERY_S, OneLineParser, add_sim_parser, _positive_float, _status_period
 
 from companion.replay_common import REPLAY_FLUSH_INTERVAL_S  # noqa: F401 - (the names tests and tools know)
 from companion.replay_common import damaged as _damaged
@@ -159,14 +160,18 @@ def _build_pipeline(recorder, args):
         raise UsageError(f"gravity map {args.gravity_map}: {err}") from None
 
 
-def _refuse_overwriting_inputs(out: Path, inputs: list[Path]) -> None:
-    """An input is never overwritten: checked before anything is opened (same path, or the same file by another name)."""
+def _refuse_overwriting_inputs(out: Path, inputs: list[Path], what: str = "input") -> None:
+    """Every input a regular file of a sane size, never overwritten: checked before anything is opened (same path, or
+    the same file by another name); companion.inputs."""
+    from companion.inputs import input_problem, output_problem
+
     for src in inputs:
-        same = out.resolve() == src.resolve()
-        if not same and out.exists() and src.exists():
-            same = os.path.samefile(out, src)
-        if same:
-            raise UsageError(f"--out {out} is the input {src}: refusing to overwrite it")
+        why = input_problem(src, what)
+        if why:
+            raise UsageError(why)
+    why = output_problem(out, [(what, src) for src in inputs])
+    if why:
+        raise UsageError(why)
 
 
 def cmd_replay(args) -> int:
@@ -292,6 +297,17 @@ def _run(args, stop) -> int:
         named = re.compile(r"companion-\d{8}T\d{6}Z(-\d{3})?\.mcap")  # only the service's own records
         earlier = sorted(q for q in out.glob("companion-*.mcap") if named.fullmatch(q.name)) if out.is_dir() else []
         out = out / datetime.datetime.now(datetime.timezone.utc).strftime("companion-%Y%m%dT%H%M%SZ.mcap")
+    from companion.inputs import output_problem
+
+    why = output_problem(out, [("config file", args.config), ("signing key file", config.link.signing_key_file),
+                               ("gravity map", config.gravity.map)])
+    if why:
+        raise UsageError(why)
+    segmented = config.record.segment_s > 0 or config.record.max_total_mb > 0
+    if not args.force and _record_exists(out, segmented):
+        new = _free_name(out, segmented)
+        logging.getLogger("companion.run").warning("%s exists: recording to %s instead (--force replaces it)", out, new)
+        out = new
     out.parent.mkdir(parents=True, exist_ok=True)
     live_view = None
     if args.foxglove:
@@ -343,6 +359,19 @@ def _run(args, stop) -> int:
     return EXIT_INTERRUPTED if (stopped_by or stop.reason) == "SIGINT" else EXIT_OK
 
 
+def _record_exists(out: Path, segmented: bool) -> bool:
+    """A record is there already: the file, or (segmented) its first segment."""
+    return out.exists() or (segmented and out.with_name(f"{out.stem}-000{out.suffix}").exists())
+
+
+def _free_name(out: Path, segmented: bool) -> Path:
+    """NAME_2.mcap, NAME_3.mcap, ...: the first name no record has (a run never replaces one unless --force)."""
+    k = 2
+    while _record_exists(out.with_name(f"{out.stem}_{k}{out.suffix}"), segmented):
+        k += 1
+    return out.with_name(f"{out.stem}_{k}{out.suffix}")
+
+
 def _print_run_summary(runtime, recorder, stopped_by: str | None, elapsed_s: float) -> None:
     _print_summary(runtime, runtime.pipeline, recorder.path, stopped_by, elapsed_s,
                    recorded=recorder.write_error is None)
@@ -385,13 +414,13 @@ def cmd_inspect(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="companion", description=__doc__.splitlines()[0].replace("``", ""), epilog=_EPILOG,
+    p = OneLineParser(prog="companion", description=__doc__.splitlines()[0].replace("``", ""), epilog=_EPILOG,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"companion {__version__}")
     _add_verbosity(p, 0)
     common = argparse.ArgumentParser(add_help=False)
     _add_verbosity(common, argparse.SUPPRESS)
-    sub = p.add_subparsers(dest="command", required=True)
+    sub = p.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
     _orig_add_parser = sub.add_parser
 
     def add_parser(name, **kw):
@@ -451,65 +480,17 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--foxglove", metavar="[HOST:]PORT", default=None,
                    help="serve the record's topics live over the Foxglove WebSocket protocol (default: off; "
                         "HOST defaults to 127.0.0.1, loopback only; PORT 0 picks a free port)")
-    n.add_argument("--status-every", type=float, default=30.0, metavar="SECONDS",
-                   help="log a one-line status (rates, navigator mode, last fix age) at INFO this often (default 30; 0: never)")
+    n.add_argument("--status-every", type=_status_period, default=30.0, metavar="SECONDS",
+                   help=f"log a one-line status (rates, navigator mode, last fix age) at INFO this often (default 30, at "
+                        f"least {MIN_STATUS_EVERY_S:g}; -q: none)")
+    n.add_argument("--force", action="store_true",
+                   help="replace an existing record at --out (without it a run records to NAME_2.mcap, NAME_3.mcap, ...)")
     n.add_argument("--duration", type=_positive_float, default=None, help="stop after this many seconds")
     n.add_argument("--gravity-map", default=None, metavar="FILE",
                    help="gravity-aided: match NAMED_VALUE_FLOAT 'GRAV' readings (mGal) against this grid ([gravity] settings)")
     n.set_defaults(func=cmd_run)
 
-    v = sub.add_parser("sim", help="simulated ArduPilot vehicle on a MAVLink link, for hardware-in-the-loop tests")
-    v.add_argument("--listen", default="tcpin:127.0.0.1:5760", help="tcpin:HOST:PORT (like SITL) or udpout:HOST:PORT")
-    v.add_argument("--log", help="play this .tlog (default: a generated flight, the sample flight's profile)")
-    v.add_argument("--profile", choices=("sample", "circuit", "cruise"), default="sample",
-                   help="generated flight: the sample flight, 200 m circuits that can loop, or an hours-long lawn-mower survey cruise")
-    v.add_argument("--loops", type=int, default=1, help="play the source this many times, boot time running on (0: until stopped)")
-    v.add_argument("--gnss-hz", type=_positive_float, default=None, help="generated flight: GNSS rate (default 10; cruise 5)")
-    v.add_argument("--imu-hz", type=_positive_float, default=None, help="generated flight: IMU rate (default 50; cruise 25)")
-    v.add_argument("--attitude-hz", type=_positive_float, default=10.0, help="generated flight: ATTITUDE rate (default 10)")
-    v.add_argument("--sensors", choices=("drone", "aircraft"), default="drone",
-                   help="generated flight: sensor set (drone: MEMS IMU + AHRS; aircraft: tactical IMU, navigation-grade "
-                        "attitude/heading), see companion.sim.flight.SENSOR_SETS")
-    c = v.add_argument_group("cruise (--profile cruise): a lawn-mower survey from --origin, lines along --cruise-heading")
-    c.add_argument("--hours", type=_positive_float, default=3.0, help="flight duration in hours (default 3)")
-    c.add_argument("--cruise-speed", type=_positive_float, default=150.0,
-                   help="cruise speed m/s (default 150, an aircraft; below 30 the ship defaults apply: 0 m, 20 km lines 2 km apart)")
-    c.add_argument("--origin", metavar="LAT,LON", default=None, help="start (survey box corner) in degrees (default -40.5,155.6, Tasman Sea)")
-    c.add_argument("--line-km", type=_positive_float, default=None, help="survey line length km (default 300; ship 20)")
-    c.add_argument("--spacing-km", type=_positive_float, default=None, help="distance between lines km (default 25; ship 2)")
-    c.add_argument("--cruise-heading", type=float, default=0.0, help="direction of the first line, deg from north (default 0); later lines lie to its right")
-    c.add_argument("--cruise-alt", type=float, default=None, help="survey height above the origin m (default 300; ship 0)")
-    c.add_argument("--max-lines", type=int, default=None, help="turn back across the box after this many lines (default: keep adding lines)")
-    # let "--origin -40.5,155.6" read as a value, not an option (argparse only knows plain negative numbers)
-    import re
-
-    v._negative_number_matcher = re.compile(r"^-\d+$|^-\d*\.?\d+(,-?\d*\.?\d+)?$")
-    gr = v.add_argument_group("gravimeter: NAMED_VALUE_FLOAT readings of a gravity map at the true position (generated flights)")
-    gr.add_argument("--gravity-map", metavar="FILE", default=None, help="gravity anomaly grid (netCDF, mGal, lat/lon axes)")
-    gr.add_argument("--gravity-name", default="GRAV", help="NAMED_VALUE_FLOAT name (default GRAV, at most 10 characters)")
-    gr.add_argument("--gravity-sigma-mgal", type=float, default=1.0, help="gravimeter white noise (default 1 mGal; seeded by --seed)")
-    gr.add_argument("--gravity-hz", type=_positive_float, default=1.0, help="gravimeter reading rate (default 1 Hz)")
-    v.add_argument("--seed", type=int, default=None, help="generated flight / noise seed")
-    v.add_argument("--speed", type=_positive_float, default=1.0, help="playback speed (1 = real time)")
-    v.add_argument("--start", type=float, default=0.0, help="start at this playback time (s)")
-    v.add_argument("--end", type=float, default=None, help="stop at this playback time (s)")
-    v.add_argument("--streams", choices=("requested", "all"), default="requested", help="send streams only once requested (default), or all")
-    v.add_argument("--gnss-off", type=float, nargs=2, metavar=("FROM", "TO"), help="GNSS cut window (playback s)")
-    v.add_argument("--imu-off", type=float, nargs=2, metavar=("FROM", "TO"), help="IMU stop window (playback s)")
-    v.add_argument("--link-drop", type=float, nargs=2, metavar=("FROM", "TO"), help="link drop window (playback s)")
-    v.add_argument("--reboot-at", type=float, default=None, help="reboot at this playback time (s)")
-    v.add_argument("--reboot-downtime", type=float, default=2.0, help="silence during a reboot (s, default 2)")
-    v.add_argument("--noise", action="store_true", help="bad input once a second: garbage, bad CRC, other systems, NaN, duplicates")
-    v.add_argument("--signing-key-file", default=None, help="sign what we send, accept only signed frames")
-    v.add_argument("--record", help="JSON-lines record of every GPS_INPUT received (with truth and error)")
-    v.add_argument("--gps-mav-instance", type=int, choices=(0, 1), default=None, metavar="N",
-                   help="GPS instance N (0 or 1, = the companion's gps_id) is a MAVLink GPS (GPS{N+1}_TYPE=14) as "
-                        "ArduPilot has it: arming waits for a 3D GPS_INPUT for it at most 1 s old (the flight follows "
-                        "later; 'PreArm: GPS {N+1}: Bad fix' meanwhile); the record marks GPS_INPUT the autopilot ignores")
-    v.add_argument("--idle-exit", type=float, default=10.0, metavar="SECONDS",
-                   help="end once the companion has gone quiet this long after it was heard (default 10: a companion "
-                        "reconnects within its 8 s back-off; 0: serve until the flight ends or SIGTERM)")
-    v.set_defaults(func=cmd_sim)
+    add_sim_parser(sub).set_defaults(func=cmd_sim)
 
     c = sub.add_parser("convert", help="every message of a dataflash .bin or telemetry .tlog into MCAP, each type on its "
                                        "own topic with its schema (for Foxglove, which cannot open either)")
@@ -550,16 +531,6 @@ def _add_verbosity(parser: argparse.ArgumentParser, default) -> None:
                         help="less output: no progress bar, no summary, only warnings (-qq: only errors)")
 
 
-def _positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be > 0")
-    return v
-
-
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)  # --version and --help end here, before the package's heavy imports
     from companion.extras import MissingExtra
@@ -579,7 +550,7 @@ def main(argv: list[str] | None = None) -> int:
             os._exit(rc)
         return rc
     except (SourceError, UsageError, RecordError, MissingExtra) as err:
-        stderr_line(f"companion: error: {err}")
+        stderr_line(f"companion: error: {' '.join(str(err).split())}")  # (one line, whatever the message held)
         return EXIT_ERROR
     except KeyboardInterrupt:
         stderr_line("companion: interrupted", 4)

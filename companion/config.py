@@ -24,6 +24,13 @@ class ConfigError(Exception):
     """A setting is missing, unknown or invalid; ``str(err)`` names it."""
 
 
+#: link settings' bounds: a floor keeps the process calm (a back-off of 1e-9 s logged 43,779 lines in 5 s), a ceiling
+#: keeps the link watched
+LINK_BOUNDS = (("heartbeat_hz", 0.1, 10.0), ("link_timeout_s", 0.5, 600.0), ("reconnect_min_s", 0.1, 600.0),
+               ("reconnect_max_s", 0.1, 3600.0))
+MIN_FLUSH_S = 0.1
+
+
 #: Messages the runtime asks the autopilot for, with the rate (Hz) it asks for by default.
 DEFAULT_STREAMS_HZ: dict[str, float] = {
     "GPS_RAW_INT": 10.0,
@@ -285,8 +292,8 @@ def _streams(table: Any) -> StreamConfig:
             )
     kw["rates_hz"] = rates
     cfg = StreamConfig(**kw)
-    if not cfg.check_period_s > 0:
-        raise ConfigError("streams.check_period_s must be > 0")
+    if not 1.0 <= cfg.check_period_s <= 3600:
+        raise ConfigError(f"streams.check_period_s must be in [1, 3600], got {cfg.check_period_s}")
     if not 0 < cfg.min_fraction <= 1:
         raise ConfigError("streams.min_fraction must be in (0, 1]")
     if "GPS_RAW_INT" not in rates:
@@ -315,19 +322,24 @@ def _validate(cfg: Config) -> Config:
             raise ConfigError(f"link.{k} must be in {lo}..255, got {getattr(L, k)}")
     if L.baud <= 0:
         raise ConfigError(f"link.baud must be > 0, got {L.baud}")
-    for k in ("heartbeat_hz", "link_timeout_s", "reconnect_min_s", "reconnect_max_s"):
-        if not getattr(L, k) > 0:
-            raise ConfigError(f"link.{k} must be > 0, got {getattr(L, k)}")
+    for k, lo, hi in LINK_BOUNDS:
+        v = getattr(L, k)
+        if not (math.isfinite(v) and lo <= v <= hi):
+            raise ConfigError(f"link.{k} must be in [{lo:g}, {hi:g}] (a calm process, a link still watched), got {v}")
     if L.reconnect_max_s < L.reconnect_min_s:
         raise ConfigError("link.reconnect_max_s must be >= link.reconnect_min_s")
+    for k, v in (("link.connect", L.connect), ("link.signing_key_file", L.signing_key_file),
+                 ("record.out", cfg.record.out), ("gravity.map", cfg.gravity.map)):
+        if "\0" in v:
+            raise ConfigError(f"{k} contains a NUL byte")
     if L.signing_key_file:
         load_signing_key(L.signing_key_file)  # fails now, not at the first message
-    if cfg.duration_s < 0:
-        raise ConfigError("duration_s must be >= 0")
+    if not (math.isfinite(cfg.duration_s) and cfg.duration_s >= 0):
+        raise ConfigError(f"duration_s must be a finite number >= 0, got {cfg.duration_s}")
     if not cfg.record.out:
         raise ConfigError("record.out must name a file or directory")
-    if not cfg.record.flush_interval_s > 0:
-        raise ConfigError("record.flush_interval_s must be > 0")
+    if not MIN_FLUSH_S <= cfg.record.flush_interval_s <= 3600:
+        raise ConfigError(f"record.flush_interval_s must be in [{MIN_FLUSH_S:g}, 3600], got {cfg.record.flush_interval_s}")
     if 0 < cfg.record.segment_s < MIN_SEGMENT_S:
         raise ConfigError(f"record.segment_s must be 0 (one file) or >= {MIN_SEGMENT_S:g} s, got {cfg.record.segment_s:g}")
     if 0 < cfg.record.max_total_mb < MIN_BUDGET_MB:
@@ -365,6 +377,11 @@ def _validate_gravity(g: GravityConfig) -> None:
 
 def load_signing_key(path: str) -> bytes:
     """A MAVLink2 signing key: a file holding 32 raw bytes or 64 hexadecimal characters."""
+    from companion.inputs import MAX_KEY_BYTES, input_problem
+
+    why = input_problem(path, "signing key file", MAX_KEY_BYTES)
+    if why:
+        raise ConfigError(f"link.signing_key_file: {why}")
     p = Path(path)
     try:
         data = p.read_bytes()
@@ -389,6 +406,11 @@ def load_config(path: str | os.PathLike | None = None, overrides: dict[str, Any]
     """
     data: dict[str, Any] = {}
     if path is not None:
+        from companion.inputs import MAX_CONFIG_BYTES, input_problem
+
+        why = input_problem(path, "config file", MAX_CONFIG_BYTES)
+        if why:
+            raise ConfigError(why)
         p = Path(path)
         try:
             with p.open("rb") as f:

@@ -198,7 +198,8 @@ def load_grid(path: str | Path, variable: str | None = None, name: str | None = 
     try:
         ds = xr.open_dataset(path, decode_times=False)
     except Exception as exc:  # netCDF4/h5 raise many types for non-netCDF bytes
-        raise MapFormatError(f"{path.name}: not a readable netCDF file ({type(exc).__name__}: {exc})") from exc
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+        raise MapFormatError(f"{path.name}: not a readable netCDF file ({type(exc).__name__}: {first})") from exc
     with ds:
         if variable is None:
             cands = [v for v in ds.data_vars if ds[v].ndim == 2]
