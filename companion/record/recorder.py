@@ -174,7 +174,8 @@ class Recorder:
             raise ValueError("chunk_size and flush_interval_s must be positive")
         self.path = Path(path)
         self._raise = raise_errors
-        self._announce = announce_errors
+        self.announce_errors = announce_errors
+        self.chunks_written = 0  # chunks with messages that reached the file whole
         self._closed = True  # until the file is open, close() has nothing to do
         #: the OS error that stopped recording (a full disk, a removed drive): the recorder then drops every
         #: later message (counted in ``dropped_after_error``) and never raises again, so a write error does not stop
@@ -426,7 +427,7 @@ class Recorder:
         self.write_error = OSError(err.errno, why, str(self.path))
         if self._raise:
             raise self.write_error from err
-        if self._announce:
+        if self.announce_errors:
             stderr_line(f"companion: error: recording stopped, cannot write {self.path}: {why} "
                         f"(navigation and injection go on; {self.path} is not finalised)")
 
@@ -471,8 +472,11 @@ class Recorder:
 
     def _close_chunk(self) -> None:
         # finalises the chunk (if it has messages) and writes it and its indexes
+        had = self._chunk_t0 is not None
         if self._io(self._writer.flush) and self._fsync:
             self._io(self._file.fsync)
+        if had and self.write_error is None:
+            self.chunks_written += 1
         self._chunk_bytes = 0
         self._chunk_t0 = None
 

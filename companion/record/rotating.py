@@ -16,7 +16,10 @@ so a service restarted day after day keeps its directory under the budget too.
 A write error stops the segment as in :class:`~companion.record.recorder.Recorder` (one line naming it, nothing
 raised); a new segment is tried after :data:`RETRY_MIN_S` of message time, the wait doubling up to
 :data:`RETRY_MAX_S` while the disk stays unwritable (quietly; with a budget the oldest segment is deleted first
-to make room), and one line says when the recording resumes.
+to make room). The new segment is on probation until its first chunk of messages is on disk: only then does one
+line say the recording resumed; if it fails before (a disk with room for a header, not for a chunk), it is deleted
+-- it holds nothing readable -- and the wait doubles. A stopped segment that never got a chunk to disk is deleted
+as well: no unreadable segment is left behind.
 """
 
 from __future__ import annotations
@@ -55,6 +58,7 @@ class RotatingRecorder:
         self._retry_s = RETRY_MIN_S
         self._retry_at: float | None = None  # message time of the next new segment tried after a write error
         self.write_errors: list[OSError] = []  # every write error that stopped a segment
+        self._probation = False  # the segment opened after a write error has not got a chunk to disk yet
         #: earlier records in the budget, oldest first (deleted before any segment of this run)
         self._earlier = [Path(q) for q in earlier] if self.max_total_bytes else []
         for q in self._earlier:
@@ -73,6 +77,14 @@ class RotatingRecorder:
 
     def _rotate_for(self, t_s: float) -> bool:
         """Start the next segment when this one is due; False while the recording is stopped by a write error."""
+        if self._probation:
+            if self._rec.write_error is not None:
+                return self._failed_attempt(t_s)
+            if self._rec.chunks_written:
+                self._probation = False
+                self._rec.announce_errors = True  # (a later write error is news again)
+                _logger.warning("recording resumed in %s after a write error (%d messages not recorded)",
+                                self._rec.path, self.dropped_after_error)
         if self._rec.write_error is not None:
             return self._retry(t_s)
         if self._segment_t0 is None:
@@ -113,12 +125,26 @@ class RotatingRecorder:
             self._fold_counts()
             old.close()
         if old.path in self.paths:  # the stopped segment keeps what it has: it counts in the budget
-            self._sizes[old.path] = _size(old.path)
+            if old.chunks_written:
+                self._sizes[old.path] = _size(old.path)
+            else:  # nothing of it reached the disk whole: not a segment anyone could read
+                self._delete(old.path, budget=False)
         self._dropped += old.dropped_after_error
         self._rec, self._segment_t0, self._retry_at = rec, t_s, None
-        _logger.warning("recording resumed in %s after a write error (%d messages not recorded)", rec.path,
-                        self.dropped_after_error)
+        self._probation = True  # resumed once its first chunk is on disk
         return True
+
+    def _failed_attempt(self, t_s: float) -> bool:
+        """The segment on probation failed before its first chunk reached the disk: it goes (nothing in it is
+        readable), what it held counts as not recorded, and the wait doubles."""
+        rec = self._rec
+        self._probation = False
+        self._dropped += sum(rec.counts.values())
+        rec.close()
+        self._delete(rec.path, budget=False)
+        self._retry_s = min(2.0 * self._retry_s, RETRY_MAX_S)
+        self._retry_at = t_s + self._retry_s
+        return False
 
     def _delete(self, old: Path, budget: bool = True) -> None:
         if old in self.paths:
@@ -223,9 +249,12 @@ class RotatingRecorder:
         self._rec.flush()
 
     def close(self) -> None:
-        if not self._rec.closed:
+        rec = self._rec
+        if not rec.closed:
             self._fold_counts()
-        self._rec.close()
+        rec.close()
+        if rec.write_error is not None and not rec.chunks_written and rec.path in self.paths:
+            self._delete(rec.path, budget=False)  # stopped before anything reached the disk whole: unreadable
 
     def __enter__(self) -> RotatingRecorder:
         return self

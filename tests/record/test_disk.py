@@ -255,3 +255,48 @@ def test_run_into_a_directory_keeps_it_under_the_budget(tmp_path):
     assert mine.read_bytes() == b"keep"
     new = sorted(tmp_path.glob("companion-2*-000.mcap"))
     assert len(new) == 1 and summarize(new[0]).finalised and "2 oldest records deleted" in res.stdout
+
+
+def test_resumed_only_when_a_chunk_reached_the_disk_and_no_unreadable_segment_is_left(tmp_path, caplog):
+    """A disk with room for a new segment's header but not for a chunk (one free page) said "recording resumed" and
+    left that segment behind unreadable; now the attempt is deleted, and the resumption is said once, when true."""
+    import logging
+
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", str(mnt)], capture_output=True).returncode:
+        pytest.skip("cannot mount a tmpfs here (needs root)")
+    caplog.set_level(logging.INFO, "companion.record.rotating")
+    try:
+        ballast = mnt / "ballast"
+        fd = os.open(ballast, os.O_WRONLY | os.O_CREAT)
+        try:
+            while os.write(fd, b"\1" * 4096):
+                pass
+        except OSError:
+            pass
+        finally:
+            os.close(fd)
+        rng = np.random.default_rng(7)
+        rec = RotatingRecorder(mnt / "live.mcap", segment_s=600.0, chunk_size=65536)  # (a chunk: > 1 page)
+        resumed_false = []
+        for k in range(100_000):  # 1000 s at 100 Hz (the retries back off to minutes)
+            t = k * 0.01
+            if k == 2000:  # a page frees up: a header fits, a chunk does not
+                os.truncate(ballast, ballast.stat().st_size - 4096)
+            if k == 40_000:  # the disk has room again
+                ballast.unlink()
+            rec.write(_imu(rng, t))
+            if k < 40_000 and any("resumed" in r.message for r in caplog.records):
+                resumed_false.append(t)
+                break
+        rec.close()
+        assert not resumed_false, f"'recording resumed' at {resumed_false[0]:.1f} s with the disk still full"
+        assert [r.message for r in caplog.records if "resumed" in r.message][:1], caplog.text
+        assert rec.paths and all(p.exists() for p in rec.paths)
+        for p in mnt.glob("live-*.mcap"):
+            assert p in rec.paths, f"{p.name} ({p.stat().st_size} bytes) left behind"
+            got = summarize(p)  # finalised, or (stopped by a write error) whole chunks to its end
+            assert got.message_count > 0 and got.readable_bytes == got.size_bytes, (p.name, got.size_bytes, got.note)
+    finally:
+        subprocess.run(["umount", str(mnt)], capture_output=True)
