@@ -317,17 +317,19 @@ def _run(args, stop) -> int:
             live_view = LiveView(*parse_endpoint(args.foxglove))
         except ValueError as err:
             raise UsageError(str(err)) from None
-    from companion.record.clock import RecordClock
+    from companion.record.clock import RecordClock, UtcHold
 
-    # log times in UTC from the vehicle's first GPS time or SYSTEM_TIME on; before it, the host's UTC clock (one
-    # clock for every segment)
+    # log times in UTC from the vehicle's first GPS time or SYSTEM_TIME on, what came before held until then (or
+    # vehicle boot time throughout when it is not known soon enough): one clock for the record and every segment
+    clock = RecordClock()
     rec_kw = dict(flush_interval_s=config.record.flush_interval_s, fsync=config.record.fsync,
-                  clock=RecordClock(host_fallback=True), live_view=live_view)
+                  clock=clock, live_view=live_view)
     if config.record.segment_s > 0 or config.record.max_total_mb > 0:
         recorder = RotatingRecorder(out, segment_s=config.record.segment_s,
                                     max_total_bytes=int(config.record.max_total_mb * 1e6), earlier=earlier, **rec_kw)
     else:
         recorder = Recorder(out, **rec_kw)
+    recorder = UtcHold(recorder, clock)
     try:
         runtime = Runtime(config, recorder, stop_signals=stop)
     except (ValueError, ImportError) as err:  # the gravity map (MapFormatError is a ValueError) or its extra

@@ -10,9 +10,11 @@ The relation ``unix_ns = round(t_s * 1e9) + offset_ns`` is taken once, from the 
 
 and then kept for the whole record (also across autopilot reboots: ``t_s`` runs on through them), so
 the record stays deterministic. A replay looks ahead for that first time (:func:`find_utc_offset`), so
-its record is in UTC from the first message on. A live run learns it on the way; messages before
-that (link events before the first vehicle message, or a vehicle without GPS time yet) get the host's
-UTC clock, marked in the ``clock`` metadata record, instead of all being stamped 0.
+its record is in UTC from the first message on. A live run learns it on the way: :class:`UtcHold` holds what
+comes before (link events, a vehicle without GPS time yet) and writes it in UTC once it is known, so one record
+never mixes clocks (the host's clock, on a computer without a real-time clock or before NTP, can be years off the
+vehicle's). If the vehicle's UTC is not known within :data:`HOLD_S` of vehicle time, the whole record is in vehicle
+boot time instead; the ``clock`` metadata record says which.
 
 Leap seconds: :mod:`companion.gpstime` (the tz database's list, kept up to date by the OS).
 """
@@ -84,6 +86,13 @@ class RecordClock:
                                  "it was known carry the host's time", self.host_minus_vehicle_s, self.source,
                                  self.before_utc)
 
+    def use_boot_time(self, why: str) -> None:
+        """Commit the record to vehicle boot time (its UTC is not known soon enough): one clock throughout."""
+        if self.offset_ns is None:
+            self.offset_ns, self.source, self.boot_time = 0, why, True
+
+    boot_time = False  # committed to vehicle boot time (use_boot_time)
+
     def log_ns(self, t_ns: int) -> int:
         if self.offset_ns is not None:
             return max(0, t_ns + self.offset_ns)
@@ -91,7 +100,9 @@ class RecordClock:
         return time.time_ns() if self.host_fallback else t_ns
 
     def metadata(self) -> dict[str, str]:
-        if self.offset_ns is None:
+        if self.boot_time:
+            meta = {"log_time": f"vehicle boot time ns ({self.source})"}
+        elif self.offset_ns is None:
             meta = {"log_time": "vehicle boot time ns (no GPS time or SYSTEM_TIME seen)" if not self.host_fallback
                     else "host UTC clock, Unix epoch ns (the vehicle's UTC was never known)"}
         else:
@@ -109,6 +120,69 @@ class RecordClock:
         meta["payload_time"] = "t_s: vehicle time in s since autopilot boot (running on through reboots)"
         meta["leap_seconds"] = LEAP_SOURCE
         return meta
+
+
+#: how long (vehicle time) a live record holds its messages waiting for the vehicle's UTC, and how many at most
+HOLD_S = 30.0
+HOLD_MAX = 200_000
+
+
+class UtcHold:
+    """A live recorder's front (``Recorder`` or ``RotatingRecorder`` with ``clock``): every write is held until the
+    vehicle's UTC is known (then all go in UTC, in order), or until :data:`HOLD_S` of vehicle time has passed without
+    it (then the record is in vehicle boot time throughout). Anything else is the recorder's own."""
+
+    def __init__(self, recorder: Any, clock: RecordClock, hold_s: float = HOLD_S, max_held: int = HOLD_MAX) -> None:
+        self.recorder, self.clock = recorder, clock
+        self.hold_s, self.max_held = hold_s, max_held
+        self._held: list[tuple[Any, tuple, dict]] | None = []  # None: released
+        self._first_t: float | None = None
+
+    def _put(self, fn, t_s: float, args: tuple, kw: dict) -> None:
+        if self._held is None:
+            fn(*args, **kw)
+            return
+        self._held.append((fn, args, kw))
+        if self._first_t is None and math.isfinite(t_s):
+            self._first_t = t_s
+        if self.clock.offset_ns is None and (len(self._held) >= self.max_held or (
+                self._first_t is not None and math.isfinite(t_s) and t_s - self._first_t > self.hold_s)):
+            self.clock.use_boot_time(f"the vehicle's UTC was not known within {self.hold_s:g} s of vehicle time: "
+                                     "one clock for the whole record")
+            _log.warning("no GPS time or SYSTEM_TIME from the vehicle in %g s: the record is in vehicle boot time",
+                         self.hold_s)
+        if self.clock.offset_ns is not None:
+            self.release()
+
+    def release(self) -> None:
+        """Write what is held (in UTC if known, else committing the record to boot time)."""
+        if self._held is None:
+            return
+        if self.clock.offset_ns is None:
+            self.clock.use_boot_time("the vehicle's UTC was never known: one clock for the whole record")
+        held, self._held = self._held, None
+        for fn, args, kw in held:
+            fn(*args, **kw)
+
+    def write(self, item: Any, topic: str | None = None) -> None:
+        self.clock.observe(item)
+        self._put(self.recorder.write, getattr(item, "t_s", math.nan), (item, topic), {})
+
+    def write_dict(self, topic, schema_name, json_schema, payload, t_s: float) -> None:
+        self._put(self.recorder.write_dict, t_s, (topic, schema_name, json_schema, payload, t_s), {})
+
+    def write_location(self, topic: str, t_s: float, *args: Any, **kw: Any) -> None:
+        self._put(self.recorder.write_location, t_s, (topic, t_s, *args), kw)
+
+    def write_log(self, topic: str, t_s: float, *args: Any, **kw: Any) -> None:
+        self._put(self.recorder.write_log, t_s, (topic, t_s, *args), kw)
+
+    def close(self) -> None:
+        self.release()
+        self.recorder.close()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.recorder, name)
 
 
 async def _first_utc(source) -> tuple[int, str] | None:

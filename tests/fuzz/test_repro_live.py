@@ -221,3 +221,20 @@ def test_serial_device_missing_at_start_is_retried(tmp_path):
 
 
 
+
+
+# ----------------------------------------------------------------------------------------------- the record's clock
+def test_live_record_is_on_one_clock(tmp_path):
+    """The fake autopilot's flight is dated years before the host's clock (as SITL's, or a Raspberry Pi's without an
+    RTC before NTP): what was recorded before its first SYSTEM_TIME must not carry the host's time."""
+    from mcap.reader import make_reader
+
+    res, _, comp = _run("quiet", [], tmp_path, quiet_s=2.0)
+    assert res.exit_code == 0 and not res.mcap, _summary(res)
+    with open(comp.out, "rb") as f:
+        reader = make_reader(f)
+        clock = next(m for m in reader.iter_metadata() if m.name == "clock").metadata
+        stats = reader.get_summary().statistics
+    span_s = (stats.message_end_time - stats.message_start_time) / 1e9
+    assert span_s < 300, f"the record spans {span_s / 86400:.0f} days ({clock})"
+    assert clock["log_time"].startswith("UTC") and "before_utc" not in clock, clock

@@ -41,6 +41,50 @@ def test_clock_before_and_after_utc():
     assert live.host_minus_vehicle_s > 10**7 and float(live.metadata()["host_clock_minus_vehicle_utc_s"]) > 10**7
 
 
+def _log_times(path):
+    with open(path, "rb") as f:
+        return [m.log_time for _, _, m in make_reader(f).iter_messages(log_time_order=False)]
+
+
+def test_a_live_record_never_mixes_clocks(tmp_path):
+    """Link events and samples before the vehicle's UTC is known are held and written in UTC with the rest (the host's
+    clock, a Raspberry Pi's before NTP or a 2025 simulator's against today, is not in the record)."""
+    from companion.events import ImuSample, SystemTime
+    from companion.mavlink.link import LinkStatus
+    from companion.record import Recorder
+    from companion.record.clock import UtcHold
+
+    clock = RecordClock()
+    rec = UtcHold(Recorder(tmp_path / "live.mcap", clock=clock), clock)
+    rec.write(LinkStatus(0.0, "opened", "tcp:x"))  # before any vehicle message: t_s 0
+    for k in range(300):  # 3 s of IMU before the first SYSTEM_TIME
+        rec.write(ImuSample(t_s=20.0 + 0.01 * k, accel_frd_mps2=(0.0, 0.0, -9.8), gyro_frd_radps=(0.0, 0.0, 0.0), imu_index=0))
+    rec.write(SystemTime(t_s=23.0, unix_time_s=1_750_000_000.0))
+    rec.write(ImuSample(t_s=23.01, accel_frd_mps2=(0.0, 0.0, -9.8), gyro_frd_radps=(0.0, 0.0, 0.0), imu_index=0))
+    rec.close()
+    times = _log_times(tmp_path / "live.mcap")
+    assert len(times) == 303
+    assert max(times) - min(times) == round(23.01 * 1e9)  # the vehicle's own span: one clock (UTC)
+    assert min(times) == (1_750_000_000 - 23) * 10**9  # the link event at its vehicle time, in UTC
+    assert clock.metadata()["log_time"].startswith("UTC")
+
+
+def test_a_live_record_without_vehicle_utc_is_in_boot_time_throughout(tmp_path):
+    from companion.events import ImuSample, SystemTime
+    from companion.record import Recorder
+    from companion.record.clock import UtcHold
+
+    clock = RecordClock()
+    rec = UtcHold(Recorder(tmp_path / "live.mcap", clock=clock), clock, hold_s=5.0)
+    for k in range(1000):  # 10 s without GPS time or SYSTEM_TIME, then it comes: too late to change the clock
+        rec.write(ImuSample(t_s=20.0 + 0.01 * k, accel_frd_mps2=(0.0, 0.0, -9.8), gyro_frd_radps=(0.0, 0.0, 0.0), imu_index=0))
+    rec.write(SystemTime(t_s=30.0, unix_time_s=1_750_000_000.0))
+    rec.close()
+    times = _log_times(tmp_path / "live.mcap")
+    assert min(times) == 20 * 10**9 and max(times) == 30 * 10**9  # boot time, every message
+    assert clock.metadata()["log_time"].startswith("vehicle boot time ns (the vehicle's UTC was not known within 5")
+
+
 @pytest.fixture(scope="module")
 def erle_record(tmp_path_factory):
     log = require(LOG_ERLE)
