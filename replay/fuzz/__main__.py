@@ -175,6 +175,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-write", action="store_true", help="print only, leave the results file alone")
     ap.add_argument("--live", action="store_true", help="also run the live-link scenarios")
     ap.add_argument("--live-only", action="store_true", help="only the live-link scenarios")
+    ap.add_argument("--settings", action="store_true",
+                    help="also the settings-and-files cases (replay/fuzz/settings.py; with --live-only: those too)")
     a = ap.parse_args(argv)
     if a.jsonl:
         Path(a.jsonl).parent.mkdir(parents=True, exist_ok=True)
@@ -193,6 +195,14 @@ def main(argv: list[str] | None = None) -> int:
         print(text)
         if not a.no_write:
             _write("live", text, out)
+    if a.settings:
+        from replay.fuzz.settings import run_settings_fuzz
+
+        cmd = "nice -n 10 .venv/bin/python -m replay.fuzz " + " ".join(argv if argv is not None else sys.argv[1:])
+        text = run_settings_fuzz(Path(a.workdir), command=cmd.strip())
+        print(text)
+        if not a.no_write:
+            _write("settings", text, out)
     return 0
 
 

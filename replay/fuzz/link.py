@@ -566,11 +566,13 @@ def run_live_fuzz(*, load=None, workdir: Path, seed: int = 0, transports=("tcp",
             rows.append([name, tr, "yes" if not res.violations else "no", res.exit_code,
                          "-" if res.sigterm_to_exit_s is None else round(res.sigterm_to_exit_s, 2),
                          "-" if res.died_s is None else f"died {res.died_s:.1f} s in",
-                         res.fresh_after_faults, res.gps_inputs, res.stale, round(res.max_lag_s, 2), res.inaccurate,
+                         res.fresh_after_faults, res.gps_inputs, res.stale, round(res.max_lag_s, 2), res.unstamped,
+                         res.wrong_time, res.inaccurate,
                          round(res.max_err_ratio, 2), res.traceback or "-", res.mcap or "ok",
                          ", ".join(res.violations) or "-"])
     head = ["scenario", "link", "ok", "exit", "SIGTERM -> exit s", "died", "fresh GPS_INPUT after faults",
-            "GPS_INPUT", f"stale (> {MAX_LAG_S:g} s)", "max lag s", "error > 4 x accuracy", "max error / accuracy",
+            "GPS_INPUT", f"stale (> {MAX_LAG_S:g} s)", "max lag s", "fix without a time", "another boot's time",
+            "error > 4 x accuracy", "max error / accuracy",
             "traceback", "MCAP", "violations"]
     import platform
 
@@ -583,14 +585,18 @@ def run_live_fuzz(*, load=None, workdir: Path, seed: int = 0, transports=("tcp",
         "",
         f"replay/fuzz/link.py: a fake autopilot on loopback TCP (it listens, `--connect tcp:`) and UDP (`--connect "
         f"udpin:`) plays the generated sample flight from 20 s in real time (HEARTBEAT, SYSTEM_TIME, GPS_RAW_INT 5 Hz, "
-        f"RAW_IMU 50 Hz, ATTITUDE 10 Hz); faults start 1 s after the first fresh GPS_INPUT; 6 s of plain stream "
+        f"RAW_IMU 50 Hz, ATTITUDE 10 Hz); faults start 1 s after the first fresh GPS_INPUT (silence_then_burst: 4 s "
+        f"silent, the link declared lost and reconnected, then the backlog at once; reboot_mid_send: 1.5 s silent, "
+        f"then the boot clock restarts at 1 s); 6 s of plain stream "
         f"follow the last one, then SIGTERM while the stream goes on. Lag of a GPS_INPUT = its arrival minus the "
         f"send time of the first stream message it could have been built from. {platform.machine()}, "
         f"{os.cpu_count()} cores" + (f"; {load.text()}" if load is not None else "") + ".",
         "",
         "Properties: up until the SIGTERM, fresh (lag <= 0.5 s) GPS_INPUT after the faults (not deaf), exit 0 within "
-        "2 s of SIGTERM, no traceback, no GPS_INPUT lagging more than 0.5 s, no 3D fix off by more than 4 x its "
-        "accuracy, a readable MCAP.",
+        "2 s of SIGTERM, no traceback, no GPS_INPUT lagging more than 0.5 s on the autopilot's clock (silence then "
+        "burst: the held-back messages' send time is when the autopilot stamped them), no 2D/3D fix with time_usec or "
+        "time_week 0, none stamped later than anything the autopilot sent on its current boot (after a reboot: the "
+        "previous boot's time), no 3D fix off by more than 4 x its accuracy, a readable MCAP.",
         "",
         md_table(head, rows),
     ]
