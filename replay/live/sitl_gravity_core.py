@@ -211,8 +211,9 @@ def arm_summary(log: core.FlightLog, survey: Survey, modes: dict[int, str], kept
         sel = (own_t >= on) & (own_t < off) & (own_fx >= 3) & np.isfinite(own_hacc) & (own_hacc > 0)
         out["within_2hacc_frac"] = _f(float(np.mean(own_err[sel] <= 2.0 * own_hacc[sel]))) if sel.any() else None
         out["fixes_in_denial"] = int(sel.sum())
-        before = (own_t < off) & (own_fx >= 3)
-        out["last_hacc_m"] = _f(float(own_hacc[before][-1])) if before.any() else None
+        # the claim standing when GNSS came back: the companion's last fix in the denial, if it was 3D
+        last = np.nonzero((own_t >= on) & (own_t < off))[0]
+        out["last_hacc_m"] = _f(float(own_hacc[last[-1]])) if last.size and own_fx[last[-1]] >= 3 else None
         out["own_mean_m"] = _f(float(own_err[sel].mean())) if sel.any() else None
     return out
 

@@ -65,12 +65,18 @@ def verdicts(summary: dict, vehicle: str) -> list[str]:
         out.append(f"- healthy phase: {B['healthy_mean_m']:.2f} m = {r:.2f}x alone; target <= 1.1x: "
                    + ("met" if r <= 1.1 else f"MISSED by {r - 1.1:.2f}x"))
     w = B.get("within_2hacc_frac")
-    if w is not None:
+    if w is None:
+        out.append("- fixes within 2x h_acc: the companion sent no 3D fix in the denial (nothing to judge; EKF3 "
+                   "dead-reckoned as alone)")
+    else:
         out.append(f"- fixes within 2x h_acc: {w:.0%}; target >= 90 %: " + ("met" if w >= 0.9 else f"MISSED by {0.9 - w:.0%}"))
     j, h = B.get("return_jump_m"), B.get("last_hacc_m")
-    if j is not None:
-        out.append(f"- GNSS return: jump {j:.0f} m vs last stated h_acc {_m(h, ' m')}: "
-                   + ("met" if h is not None and j <= h else "MISSED" + (f" by {j - h:.0f} m" if h is not None else "")))
+    if j is not None and h is None:
+        out.append(f"- GNSS return: jump {j:.0f} m with no companion fix standing (EKF3's own dead-reckoning error; "
+                   f"alone: {_m(A.get('return_jump_m'), ' m')}): MISSED by {j:.0f} m")
+    elif j is not None:
+        out.append(f"- GNSS return: jump {j:.0f} m vs last stated h_acc {h:.0f} m: "
+                   + ("met" if j <= h else f"MISSED by {j - h:.0f} m"))
     rc = B.get("reconverge_s")
     out.append(f"- back to alone's healthy error: {_m(rc, ' s')}; target <= 30 s: "
                + ("met" if rc is not None and rc <= 30 else "MISSED" + (f" by {rc - 30:.0f} s" if rc is not None else " (never)")))
