@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any
 
 from companion.events import Heartbeat, StatusText
-from companion.pipeline.stage import Stage
 from companion.replay_common import REPLAY_FLUSH_INTERVAL_S, damaged, damaged_warning, finish_record
 
 EXIT_OK, EXIT_ERROR, EXIT_DAMAGED = 0, 2, 3
@@ -22,15 +21,15 @@ EXIT_OK, EXIT_ERROR, EXIT_DAMAGED = 0, 2, 3
 _FIRMWARE = re.compile(r"\b(?:APM:|Ardu)(Copter|Plane|Rover|Sub|Tracker|Blimp)\b[^\n]*?\bV\d+\.\d+\S*")
 
 
-class VehicleFacts(Stage):
-    """Notes what the stream says about the vehicle: the first autopilot HEARTBEAT's MAV_TYPE and the firmware banner.
-    Outputs nothing; a fleet summary's columns."""
+class VehicleFacts:
+    """Notes what the stream says about the vehicle: the first autopilot HEARTBEAT's MAV_TYPE and the firmware banner
+    (a fleet summary's columns); shown every input event before the pipeline."""
 
     def __init__(self) -> None:
         self.vehicle_type: int | None = None
         self.firmware: str | None = None
 
-    def process(self, item: Any) -> list[Any]:
+    def see(self, item: Any) -> None:
         t = type(item)
         if t is Heartbeat:
             if self.vehicle_type is None:
@@ -39,7 +38,6 @@ class VehicleFacts(Stage):
             m = _FIRMWARE.search(item.text)
             if m:
                 self.firmware = m.group(0)
-        return []
 
     def vehicle(self, firmware: str | None) -> str | None:
         """MAV_TYPE's name (quadrotor, fixed wing, ...) when a heartbeat gave it, else the firmware's kind (copter)."""
@@ -65,7 +63,7 @@ def replay_job(log: str, out: str, navigator: bool = True) -> dict[str, Any]:
     import asyncio
 
     from companion import __version__
-    from companion.pipeline.core import build_pipeline, run_source
+    from companion.pipeline.core import build_pipeline
     from companion.record import Recorder
     from companion.record.clock import RecordClock, find_utc_offset
     from companion.sources import FileSource, SourceError
@@ -83,8 +81,8 @@ def replay_job(log: str, out: str, navigator: bool = True) -> dict[str, Any]:
         recorder = Recorder(out_p, clock=RecordClock(*utc) if utc else RecordClock(), raise_errors=True,
                             flush_interval_s=REPLAY_FLUSH_INTERVAL_S)
         facts = VehicleFacts()
-        pipeline = build_pipeline(recorder, navigator=navigator, extra_stages=[facts])
-        asyncio.run(run_source(source, pipeline))
+        pipeline = build_pipeline(recorder, navigator=navigator)
+        asyncio.run(_drive(source, pipeline, facts))
         config = {"command": "replay", "log": str(log_p), "realtime_factor": None, "companion_version": __version__}
         finish_record(recorder, source, pipeline, config, None)
         recorder = None
@@ -113,6 +111,14 @@ def replay_job(log: str, out: str, navigator: bool = True) -> dict[str, Any]:
         _fill(row, source, pipeline, facts)
     row["cpu_s"] = round(time.process_time() - t0, 3)
     return row
+
+
+async def _drive(source, pipeline, facts: VehicleFacts) -> None:
+    """companion.pipeline.core.run_source as fast as possible, each input event shown to ``facts`` first."""
+    async for ev in source:
+        facts.see(ev)
+        pipeline.process(ev)
+    pipeline.finish()
 
 
 def _fill(row: dict[str, Any], source, pipeline, facts: VehicleFacts) -> None:
