@@ -221,7 +221,15 @@ def _fuzz(t: str) -> Headline:
                     f"every input handled: {good} of {len(out)} runs")
 
 
+def _newest_block(t: str) -> str:
+    """The results block whose campaign started last (a results file keeps one block per campaign tag)."""
+    blocks = re.findall(r"<!-- BEGIN (\S+) -->(.*?)<!-- END \1 -->", t, re.S)
+    dated = [(m.group(1), body) for _k, body in blocks if (m := re.search(r"Started (\d{4}-\d\d-\d\d \d\d:\d\d:\d\d)", body))]
+    return max(dated)[1] if dated else t
+
+
 def _sitl(t: str) -> Headline:
+    t = _newest_block(t)
     errs = re.findall(r"^- \S+-deny-(\d+)\S* run \d+ \w+: took over; no failsafe: (\w+), "
                       r"EKF error <= ([\d.]+) m at every 5 s mark "
                       r"\(target <= ([\d.]+) m, no failsafe: (NOT met|met)\)", t, re.M)
