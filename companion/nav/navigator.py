@@ -144,6 +144,13 @@ class Navigator(Stage):
         return meta
 
     @property
+    def next_output_s(self) -> float:
+        """The time of the next 10 Hz output (its tick), +inf before the first fix schedules one. No FusedState can
+        come out of an event stamped at most this plus ``reorder_window_s``, unless it arrives older than the newest
+        event by more than the window (it is released at once): what the live runtime may leave for later."""
+        return math.inf if self._next_tick is None else self._next_tick * self._tick_dt
+
+    @property
     def dropped_future_events(self) -> int:
         return self._reorder.dropped_future
 

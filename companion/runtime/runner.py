@@ -10,6 +10,11 @@ the pings and systemd restarts the service).
 Latency: for every GPS_INPUT that leaves, the time from the arrival of the bytes whose decoding caused
 it (``Batch.recv_perf_s``) to the return of the socket write is kept per triggering message type.
 
+Batches between outputs: the link's reader queues what cannot make a GPS_INPUT leave (IMU samples, attitude and
+receiver fixes before the navigator's next output is due, :mod:`companion.runtime.wait`) without waking the loop;
+the loop runs them, in order, just before the batch that can. Same events, same order, same outputs; the loop
+wakes per output, not per message.
+
 Freshness under load: the injector is told when the input it is working on arrived (the kernel's receive time,
 see :mod:`companion.mavlink.transport`) and never sends a state whose input arrived more than ``inject.max_lag_s``
 (less :data:`DELIVERY_MARGIN_S`) ago. When the loop is behind the link (a batch waited
@@ -41,6 +46,8 @@ from companion.notify import Notifier
 from companion.pipeline.core import Pipeline, build_pipeline
 from companion.events import Event, ImuSample
 from companion.mavlink.link import Batch, LinkStatus, MavlinkLink
+from companion.nav import Navigator
+from companion.runtime.wait import OutputWait
 from companion.sources.base import SourceInfo
 
 _logger = logging.getLogger(__name__)
@@ -109,6 +116,11 @@ class Runtime:
         self.deferred = DeferredSink(sink) if sink is not None else None
         self.pipeline: Pipeline = build_pipeline(self.deferred, nav_config=nav_config,
                                                  extra_stages=[*stages, self.injector])
+        #: the navigator's batches between outputs wait for the next output (companion.runtime.wait)
+        self.navigator = next((st for st in self.pipeline.stages if isinstance(st, Navigator)), None)
+        self.output_wait = OutputWait(self.navigator.config.reorder_window_s) if self.navigator is not None else None
+        if self.output_wait is not None:
+            self.link.may_wait = self.output_wait.may_wait
         self.notifier = notifier if notifier is not None else Notifier()
         self.info = SourceInfo(kind="live", location=self.link.spec.url)
         self.latency_s: dict[str, array] = defaultdict(lambda: array("d"))
@@ -190,7 +202,7 @@ class Runtime:
                 if item is _STOP:
                     break
                 if isinstance(item, Batch):
-                    if time.perf_counter() - item.recv_perf_s > SHED_AFTER_S:
+                    if not item.held and time.perf_counter() - item.recv_perf_s > SHED_AFTER_S:
                         work, later = self._catch_up(item, queue)
                         for st in later:
                             if st is _STOP:
@@ -221,6 +233,8 @@ class Runtime:
                             if self._stop_requested:
                                 break
                     self._rx = None  # (the injector keeps the arrival: what finish() flushes was built from it)
+                    if self.output_wait is not None:
+                        self.output_wait.next_output_s = self.navigator.next_output_s
                     self._drain()
                     self.batches += 1
                     self._last_batch_wall = time.monotonic()

@@ -1,0 +1,67 @@
+"""Which of the link's batches the live loop may leave for later: those that cannot make a GPS_INPUT leave.
+
+A GPS_INPUT follows a navigator output (FusedState), which comes at a 10 Hz tick once an event later than the tick
+leaves the navigator's reorder buffer, i.e. once the newest event is ``reorder_window_s`` past the first event after
+the tick (companion.nav.reorder). An event that cannot bring that about, of the streams the navigator takes (IMU
+samples, attitude, receiver fixes, the autopilot's position), only changes the navigator's state: it may wait, in
+order, until the next event that can. Woken once per output instead of once per message, the loop runs the same
+events in the same order with its caches warm. Everything else (a reboot, a heartbeat, a gravimeter reading,
+SYSTEM_TIME, ...) is taken at once.
+
+The loop publishes the navigator's next tick (:attr:`OutputWait.next_output_s`) after each batch; the link's reader
+thread asks :meth:`OutputWait.may_wait` about each read, with the times of every event it has seen (the navigator's
+are among them). A tick read before the loop published the next is earlier than the real one, so the answer errs
+towards waking.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+from companion.events import Attitude, AutopilotAltitude, AutopilotPosition, Event, GnssFix, ImuSample
+
+#: the event types that may wait for the next output: the streams the navigator takes, in its event order
+MAY_WAIT = (ImuSample, Attitude, GnssFix, AutopilotPosition, AutopilotAltitude)
+
+
+#: event times kept to find the first after a tick: this far (s) behind the newest, past the reorder window
+KEEP_S = 2.0
+
+
+class OutputWait:
+    """``may_wait(events)``: True when none of the events can release a navigator output (see the module doc)."""
+
+    def __init__(self, reorder_window_s: float) -> None:
+        self.horizon_s = reorder_window_s
+        #: the navigator's next tick, published by the loop; -inf (never wait) until it is
+        self.next_output_s = -math.inf
+        self._tick = -math.inf  # the tick _first was found for
+        self._first = -math.inf  # the earliest event time seen after it
+        self._newest_s = -math.inf  # the newest event time seen
+        self._recent: deque[float] = deque()  # event times seen, in arrival order, back to newest - horizon - KEEP_S
+        self._forgot_s = -math.inf  # the latest time dropped from _recent
+
+    def may_wait(self, events: list[Event]) -> bool:
+        h = self.horizon_s
+        tick = self.next_output_s
+        if tick != self._tick:
+            self._tick = tick
+            self._first = (-math.inf if self._forgot_s > tick else
+                           min((t for t in self._recent if t > tick), default=math.inf))
+        first, newest, recent = self._first, self._newest_s, self._recent
+        ok = True
+        for ev in events:
+            t = ev.t_s
+            recent.append(t)
+            if t > newest:
+                newest = t
+            if tick < t < first:
+                first = t
+            # the navigator releases every event up to newest - h: the tick goes once the first after it is among them
+            if type(ev) not in MAY_WAIT or not first > newest - h:
+                ok = False
+        self._first, self._newest_s = first, newest
+        while recent and not recent[0] >= newest - h - KEEP_S:
+            self._forgot_s = max(self._forgot_s, recent.popleft())
+        return ok
