@@ -43,9 +43,11 @@ DEFAULT_STREAMS_HZ: dict[str, float] = {
 }
 #: Messages SET_MESSAGE_INTERVAL may be asked for (what the decoder understands).
 STREAMABLE = ("GPS_RAW_INT", "GPS2_RAW", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "ATTITUDE", "SYSTEM_TIME",
-              "GLOBAL_POSITION_INT")
+              "GLOBAL_POSITION_INT", "VFR_HUD")
 #: requested as well when gravity aiding is on: the autopilot's barometric altitude, the navigator's vertical aid
 GRAVITY_STREAMS_HZ = {"GLOBAL_POSITION_INT": 5.0}
+#: ... and with gravity.reference = "air_data": the airspeed (VFR_HUD) and the heading (ATTITUDE)
+AIR_DATA_STREAMS_HZ = {"VFR_HUD": 5.0, "ATTITUDE": 10.0}
 
 
 @dataclass(frozen=True)
@@ -125,6 +127,15 @@ class GravityConfig:
     # the fix also carries the filter's estimate of the navigator's horizontal velocity (its velocity-error states,
     # the navigator's own velocity variance divided out); the navigator fuses it as a measurement of its own
     seq_velocity_fixes: bool = False
+    # the sequential filter's reference motion: "navigator" (the navigator's state; its fixes go back into it) or
+    # "air_data" (a fixed wing: airspeed along the heading plus the wind learnt with GNSS, companion.gravity.air_data;
+    # in a GNSS outage the stage's own state replaces the navigator's towards the injector, nothing goes back)
+    reference: str = "navigator"
+    air_wind_window_s: float = 300.0  # the wind held at a GNSS loss: the mean over this long before it
+    # air data: the held wind's error, a random walk (1 sigma per sqrt(s)); its prior is seq_init_vel_sigma_mps
+    seq_wind_walk_mps_rts: float = 0.1
+    # a reading describes the vehicle this long before its stamp (a gravimeter averaging over a window: half of it)
+    reading_delay_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -192,7 +203,8 @@ _RANGES: dict[str, tuple[float, float]] = {
     "gravity.seq_particles": (50, 20_000), "gravity.seq_gyro_bias_degph": (0.0, 1e4), "gravity.seq_accel_bias_ug": (0.0, 1e6),
     "gravity.seq_gyro_arw_deg_rthr": (0.0, 100.0), "gravity.seq_accel_vrw_ug_rthz": (0.0, 1e6),
     "gravity.seq_init_vel_sigma_mps": (1e-4, 100.0), "gravity.seq_noise_corr_s": (0.0, 3600.0),
-    "gravity.seq_min_gain": (0.0, 0.99),
+    "gravity.seq_min_gain": (0.0, 0.99), "gravity.seq_wind_walk_mps_rts": (0.0, 10.0),
+    "gravity.reading_delay_s": (0.0, 600.0),
     "navigator.imu_index": (0, 3), "navigator.gnss_instance": (0, 1), "navigator.gnss_delay_s": (0.0, 1.0),
     "navigator.gnss_vel_delay_s": (0.0, 1.0),
     "navigator.reorder_window_s": (0.0, 2.0), "navigator.max_imu_step_s": (1e-3, 1.0),
@@ -345,9 +357,10 @@ def _validate(cfg: Config) -> Config:
     if 0 < cfg.record.max_total_mb < MIN_BUDGET_MB:
         raise ConfigError(f"record.max_total_mb must be 0 (no budget) or >= {MIN_BUDGET_MB:g} MB, got {cfg.record.max_total_mb:g}")
     _validate_gravity(cfg.gravity)
-    if cfg.gravity.map and any(n not in cfg.streams.rates_hz for n in GRAVITY_STREAMS_HZ):
+    wanted = {**GRAVITY_STREAMS_HZ, **(AIR_DATA_STREAMS_HZ if cfg.gravity.reference == "air_data" else {})}
+    if cfg.gravity.map and any(n not in cfg.streams.rates_hz for n in wanted):
         cfg = dataclasses.replace(cfg, streams=dataclasses.replace(
-            cfg.streams, rates_hz={**GRAVITY_STREAMS_HZ, **cfg.streams.rates_hz}))
+            cfg.streams, rates_hz={**wanted, **cfg.streams.rates_hz}))
     return cfg
 
 
@@ -360,6 +373,10 @@ def _validate_gravity(g: GravityConfig) -> None:
         raise ConfigError(f"gravity.map: {g.map} is not a file")
     if g.matcher not in MATCHERS:
         raise ConfigError(f"gravity.matcher must be one of {', '.join(MATCHERS)}, got {g.matcher!r}")
+    if g.reference not in ("navigator", "air_data"):
+        raise ConfigError(f"gravity.reference must be navigator or air_data, got {g.reference!r}")
+    if g.reference == "air_data" and g.matcher != "sequential":
+        raise ConfigError("gravity.reference = \"air_data\" needs gravity.matcher = \"sequential\"")
     if not g.eotvos_corrected and g.matcher != "sequential":
         raise ConfigError("gravity.eotvos_corrected = false needs gravity.matcher = \"sequential\" (the stage that "
                           "corrects a reading with the navigator's velocity)")

@@ -138,6 +138,15 @@ class Attitude(Event):
 
 
 @dataclass(frozen=True, slots=True)
+class AirData(Event):
+    """The autopilot's airspeed (MAVLink VFR_HUD.airspeed: on ArduPilot the airspeed sensor's equivalent airspeed
+    when one is fitted and used, else its own estimate), m/s."""
+
+    airspeed_mps: float
+    topic: ClassVar[str] = "/input/air_data"
+
+
+@dataclass(frozen=True, slots=True)
 class SystemTime(Event):
     """Relation of the vehicle clock to UTC: at vehicle time ``t_s`` the UTC time was ``unix_time_s``."""
 
@@ -239,6 +248,7 @@ EVENT_TYPES: tuple[type[Event], ...] = (
     ImuSample,
     GnssFix,
     Attitude,
+    AirData,
     SystemTime,
     Reboot,
     StatusText,

@@ -62,7 +62,7 @@ BAD = {
     "inject mode": ('[link]\nconnect = "tcp:1.2.3.4:5"\n[inject]\nmode = "on"\n', {}, "mode must be one of"),
     "slow inject": ('[link]\nconnect = "tcp:1.2.3.4:5"\n[inject]\nmode = "inject"\nrate_hz = 2\n', {}, ">= 5"),
     "gps id": ('[link]\nconnect = "tcp:1.2.3.4:5"\n', {"inject.gps_id": 3}, "inject.gps_id: 3 is out of range"),
-    "stream": ('[link]\nconnect = "tcp:1.2.3.4:5"\n[streams]\nVFR_HUD = 4\n', {}, "unknown setting 'VFR_HUD'"),
+    "stream": ('[link]\nconnect = "tcp:1.2.3.4:5"\n[streams]\nSCALED_PRESSURE = 4\n', {}, "unknown setting 'SCALED_PRESSURE'"),
     "no gps stream": ('[link]\nconnect = "tcp:1.2.3.4:5"\n[streams]\nGPS_RAW_INT = 0\n', {}, "GPS_RAW_INT must be"),
     "backoff": ('[link]\nconnect = "tcp:1.2.3.4:5"\nreconnect_min_s = 5.0\nreconnect_max_s = 1.0\n', {}, "reconnect_max_s"),
     "not toml": ("[link\nconnect=", {}, "not valid TOML"),

@@ -81,6 +81,11 @@ class InsErrorSpec:
     attitude_tau_s: float = 0.0
     attitude_tilt_sigma_rad: float = 0.0
     attitude_heading_sigma_rad: float = 0.0
+    # True: the reference is air-data dead reckoning (airspeed along the heading plus a wind held from the GNSS period,
+    # companion.gravity.air_data), not an INS: the velocity error is the held wind's error (prior init_vel_sigma_mps,
+    # a random walk of wind_walk_mps_rts m/s per sqrt(s)); the gyro, accelerometer and attitude terms do not apply
+    air_data: bool = False
+    wind_walk_mps_rts: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -390,7 +395,8 @@ class SequentialGravityFilter:
         tau_b = self._tau_b(0.5 * (speed + float(np.hypot(*vel0))))
         nsub = int(np.ceil(dt_total / cfg.max_step_s))
         dt = dt_total / nsub
-        A = error_dynamics(np.radians(lat0), vmid, acc, head0, tau_b, attitude_tau_s=cfg.ins.attitude_tau_s)
+        A = error_dynamics(np.radians(lat0), vmid, acc, head0, tau_b, attitude_tau_s=cfg.ins.attitude_tau_s,
+                           air_data=cfg.ins.air_data)
         sig_b = None if self.misfit is None else self.misfit.sigma_mgal(cfg.map_error.sigma_mgal)
         Phi, Qd = discretise(A, continuous_noise(cfg.ins, cfg.map_error, tau_b, sig_b), dt)
         qn = cfg.pos_noise_m_rts**2 * dt

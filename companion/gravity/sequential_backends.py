@@ -39,13 +39,16 @@ def eotvos_jacobian_mgal_per_mps(vel_ne_mps, lat_deg: float) -> np.ndarray:
 
 
 def error_dynamics(lat_rad: float, vel_ne_mps, acc_ne_mps2, heading_rad: float, tau_b_s: float,
-                   R: float = WGS84_A_M, attitude_tau_s: float = 0.0) -> np.ndarray:
+                   R: float = WGS84_A_M, attitude_tau_s: float = 0.0, air_data: bool = False) -> np.ndarray:
     """Continuous A for [drN, drE | dsN, dsE, dvN, dvE, psiN, psiE, psiD, bgx, bgy, bgz, bax, bay, b_map].
 
     attitude_tau_s > 0: an INS whose attitude is held by an attitude reference (the companion's navigator fuses the
     autopilot's AHRS): psi is that reference's error, first-order Gauss-Markov with this time constant, not the
     integral of the gyro errors; the Schuler feedback through the attitude is cut (the reference, not the INS's own
-    position, sets the vertical)."""
+    position, sets the vertical).
+    air_data: the reference is air-data dead reckoning (companion.gravity.air_data): its velocity error is the error
+    of the wind it holds (a random walk, continuous_noise), integrated into the position; no attitude, sensor-bias
+    or Schuler terms (psi and the biases stay at zero)."""
     vN, vE = float(vel_ne_mps[0]), float(vel_ne_mps[1])
     aN, aE = float(acc_ne_mps2[0]), float(acc_ne_mps2[1])
     c, s = np.cos(heading_rad), np.sin(heading_rad)
@@ -56,6 +59,9 @@ def error_dynamics(lat_rad: float, vel_ne_mps, acc_ne_mps2, heading_rad: float, 
     A = np.zeros((N_ALL, N_ALL))
     rN, rE, sN, sE, vn, ve, pn, pe, pd, gx, gy, gz, ax, ay, b = range(N_ALL)
     A[rN, vn] = A[rE, ve] = A[sN, vn] = A[sE, ve] = 1.0
+    A[b, b] = -1.0 / tau_b_s
+    if air_data:
+        return A
     # dv' = f x psi + C ba - (g/R) ds, f = (aN, aE, -g)
     A[vn, pe], A[vn, pd], A[vn, ax], A[vn, ay] = g, aE, c, -s
     A[ve, pn], A[ve, pd], A[ve, ax], A[ve, ay] = -g, -aN, s, c
@@ -67,7 +73,6 @@ def error_dynamics(lat_rad: float, vel_ne_mps, acc_ne_mps2, heading_rad: float, 
         A[pn, pe], A[pn, pd], A[pn, gx], A[pn, gy] = wz, -wy, -c, s
         A[pe, pn], A[pe, pd], A[pe, gx], A[pe, gy] = -wz, wx, -s, -c
         A[pd, pn], A[pd, pe], A[pd, gz] = wy, -wx, -1.0
-    A[b, b] = -1.0 / tau_b_s
     return A
 
 
@@ -76,7 +81,9 @@ def continuous_noise(spec: InsErrorSpec, mspec: MapErrorSpec, tau_b_s: float,
     """misfit_sigma_mgal: the map misfit's sigma if not mspec.sigma_mgal (a learnt one, see MisfitVarianceLearner)."""
     q = np.zeros(N_ALL)
     q[N_NL + IV:N_NL + IV + 2] = (spec.accel_vrw_ug_rthz * UG_MPS2) ** 2
-    if spec.attitude_tau_s > 0:  # stationary reference errors: q = 2 sigma^2 / tau
+    if spec.air_data:  # the held wind's error walks; nothing else moves
+        q[N_NL + IV:N_NL + IV + 2] = spec.wind_walk_mps_rts**2
+    elif spec.attitude_tau_s > 0:  # stationary reference errors: q = 2 sigma^2 / tau
         q[N_NL + IPSI:N_NL + IPSI + 2] = 2.0 * spec.attitude_tilt_sigma_rad**2 / spec.attitude_tau_s
         q[N_NL + IPSI + 2] = 2.0 * spec.attitude_heading_sigma_rad**2 / spec.attitude_tau_s
     else:
@@ -100,11 +107,12 @@ def prior_covariance(cfg: SeqGravConfig, pos_cov_ne_m2: np.ndarray) -> np.ndarra
     d = np.zeros(N_ALL)
     o = N_NL
     d[o + IV:o + IV + 2] = s.init_vel_sigma_mps**2
-    aided = s.attitude_tau_s > 0
-    d[o + IPSI:o + IPSI + 2] = (s.attitude_tilt_sigma_rad if aided else s.init_tilt_sigma_rad) ** 2
-    d[o + IPSI + 2] = (s.attitude_heading_sigma_rad if aided else s.init_heading_sigma_rad) ** 2
-    d[o + IBG:o + IBG + 3] = (s.gyro_bias_degph * DEGPH_RADPS) ** 2
-    d[o + IBA:o + IBA + 2] = (s.accel_bias_ug * UG_MPS2) ** 2
+    if not s.air_data:  # (air data: no attitude or sensor-bias states)
+        aided = s.attitude_tau_s > 0
+        d[o + IPSI:o + IPSI + 2] = (s.attitude_tilt_sigma_rad if aided else s.init_tilt_sigma_rad) ** 2
+        d[o + IPSI + 2] = (s.attitude_heading_sigma_rad if aided else s.init_heading_sigma_rad) ** 2
+        d[o + IBG:o + IBG + 3] = (s.gyro_bias_degph * DEGPH_RADPS) ** 2
+        d[o + IBA:o + IBA + 2] = (s.accel_bias_ug * UG_MPS2) ** 2
     d[o + IB] = cfg.map_error.sigma_mgal**2
     P = np.diag(d)
     P[:2, :2] = pos_cov_ne_m2

@@ -270,5 +270,7 @@ def seq_config_of(gravity) -> SeqGravConfig:
                        gyro_arw_deg_rthr=gravity.seq_gyro_arw_deg_rthr, accel_vrw_ug_rthz=gravity.seq_accel_vrw_ug_rthz,
                        init_vel_sigma_mps=gravity.seq_init_vel_sigma_mps, attitude_tau_s=gravity.seq_attitude_tau_s,
                        attitude_tilt_sigma_rad=gravity.seq_attitude_tilt_sigma_rad,
-                       attitude_heading_sigma_rad=gravity.seq_attitude_heading_sigma_rad)
+                       attitude_heading_sigma_rad=gravity.seq_attitude_heading_sigma_rad,
+                       air_data=getattr(gravity, "reference", "navigator") == "air_data",
+                       wind_walk_mps_rts=getattr(gravity, "seq_wind_walk_mps_rts", 0.0))
     return SeqGravConfig(n_particles=gravity.seq_particles, noise_corr_s=gravity.seq_noise_corr_s, ins=ins)

@@ -352,6 +352,14 @@ def live_gravity_stage(config) -> Stage:
     if gmap.axes != "geographic_deg":
         raise ValueError("a live vehicle needs a geographic (longitude/latitude) gravity map")
     lmap = LocalGravityMap.around(gmap)
+    if config.matcher == "sequential" and config.reference == "air_data":
+        from companion.gravity.air_data import AirDataConfig
+        from companion.gravity.air_data_stage import AirDataGravityStage
+        from companion.gravity.sequential_stage import seq_config_of
+
+        return AirDataGravityStage(lmap, seq_config_of(config), AirDataConfig(wind_window_s=config.air_wind_window_s),
+                                   sigma_mgal=config.sigma_mgal, reading_delay_s=config.reading_delay_s,
+                                   source=f"gravity:{config.named_value}:air_data")
     if config.matcher == "sequential":
         from companion.gravity.sequential_stage import SequentialGravityStage, seq_config_of
 

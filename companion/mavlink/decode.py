@@ -17,6 +17,7 @@ from collections import Counter
 
 from companion import units
 from companion.events import (
+    AirData,
     Attitude,
     AutopilotAltitude,
     AutopilotPosition,
@@ -49,6 +50,7 @@ WANTED_TYPES = (
     "SYSTEM_TIME",
     "STATUSTEXT",
     "GLOBAL_POSITION_INT",
+    "VFR_HUD",
 )
 
 _IMU_INDEX = {"RAW_IMU": 0, "SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
@@ -238,6 +240,15 @@ class MavlinkDecoder:
             return
         out.append(Attitude(t_s=t_s, roll_rad=msg.roll, pitch_rad=msg.pitch, yaw_rad=msg.yaw))
 
+    def _vfr_hud(self, msg, recv_s: float, out: list[Event]) -> None:
+        """VFR_HUD's airspeed (no time field: stamped on arrival); negative or beyond 300 m/s is corrupt."""
+        if not (_finite(msg.airspeed) and 0.0 <= msg.airspeed <= 300.0):
+            self.dropped["VFR_HUD airspeed out of range"] += 1
+            return
+        t_s = self._stamp(None, recv_s, out)
+        if t_s is not None:
+            out.append(AirData(t_s=t_s, airspeed_mps=float(msg.airspeed)))
+
     def _system_time(self, msg, recv_s: float, out: list[Event]) -> None:
         t_s = self._stamp(units.s_from_ms(msg.time_boot_ms), recv_s, out)
         if t_s is not None and msg.time_unix_usec > 0:
@@ -287,4 +298,5 @@ _HANDLERS = {
     "SYSTEM_TIME": MavlinkDecoder._system_time,
     "STATUSTEXT": MavlinkDecoder._statustext,
     "GLOBAL_POSITION_INT": MavlinkDecoder._global_position,
+    "VFR_HUD": MavlinkDecoder._vfr_hud,
 }

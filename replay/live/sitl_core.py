@@ -132,6 +132,8 @@ class FlightLog:
     ekf_flags: list[tuple[float, int]] = field(default_factory=list)
     marks: dict[str, float] = field(default_factory=dict)
     events: list[tuple[float, str]] = field(default_factory=list)
+    yaw: list[tuple[float, float]] = field(default_factory=list)  # t, ATTITUDE yaw (rad): the EKF's
+    truth_yaw: list[tuple[float, float]] = field(default_factory=list)  # t, SIMSTATE yaw (rad)
 
     def on_message(self, m) -> None:
         kind = m.get_type()
@@ -148,6 +150,10 @@ class FlightLog:
         elif kind == "SIMSTATE":
             if t is not None:
                 self.truth.append((t, m.lat * 1e-7, m.lng * 1e-7))
+                if hasattr(m, "yaw"):
+                    self.truth_yaw.append((t, float(m.yaw)))
+        elif kind == "ATTITUDE" and hasattr(m, "yaw"):
+            self.yaw.append((m.time_boot_ms / 1000.0, float(m.yaw)))
         elif kind == "LOCAL_POSITION_NED":
             self.local = (m.x, m.y, m.z)
         elif kind == "STATUSTEXT":
@@ -170,13 +176,15 @@ class FlightLog:
     def to_dict(self) -> dict:
         return {"ekf": self.ekf, "truth": self.truth, "texts": self.texts, "modes": self.modes,
                 "gps": {str(k): v for k, v in self.gps.items()}, "ekf_flags": self.ekf_flags, "marks": self.marks,
-                "events": self.events}
+                "events": self.events, "yaw": self.yaw, "truth_yaw": self.truth_yaw}
 
     @classmethod
     def from_dict(cls, d: dict) -> "FlightLog":
         log = cls()
         log.ekf = [tuple(x) for x in d["ekf"]]
         log.truth = [tuple(x) for x in d["truth"]]
+        log.yaw = [tuple(x) for x in d.get("yaw", [])]
+        log.truth_yaw = [tuple(x) for x in d.get("truth_yaw", [])]
         log.texts = [(math.nan if t is None else t, s, x) for t, s, x in d["texts"]]
         log.modes = [(math.nan if t is None else t, m, a) for t, m, a in d["modes"]]
         log.gps = {int(k): [tuple(x) for x in v] for k, v in d["gps"].items()}

@@ -60,16 +60,17 @@ VEHICLE_PARAMS = {
 COMPANION_PARAMS = {"GPS2_TYPE": 14, "GPS_AUTO_SWITCH": 4, "GPS_PRIMARY": 0, "SERIAL1_PROTOCOL": 2,
                     "EK3_SRC1_POSXY": 3, "EK3_SRC1_VELXY": 3, "EK3_SRC1_POSZ": 1}
 #: the companion's settings: the recommended set-up (replay.live.sitl.COMPANION_SETS) in ``backup`` (in the outage a fix
-#: only while gravity aids it: its unaided INS on the vehicle's MEMS IMU is no better than EKF3's air-data dead
-#: reckoning), the sequential gravity filter on Eotvos-uncorrected readings of a gravimeter filtered over 30 s, and
-#: gravity-aided states sent as 3D fixes with their h_acc up to 3 km (EKF3 weighs a GPS by its reported accuracy,
-#: capped at 100 m: AP_NavEKF3_PosVelFusion)
+#: only while gravity aids it), the sequential gravity filter on air-data dead reckoning (companion.gravity.air_data_stage:
+#: the navigator's INS on ArduPlane's MEMS IMU does not hold, docs/decisions/0012) with readings Eotvos-uncorrected,
+#: white per reading and describing the vehicle half the gravimeter's 30 s window before their stamp, the held wind's
+#: error a random walk of 0.1 m/s per sqrt(s) from a 1 m/s prior; its states sent as 3D fixes with their honest h_acc
+#: (EKF3 weighs a GPS by its reported accuracy, capped at 100 m: AP_NavEKF3_PosVelFusion)
 COMPANION_SETS = ['inject.activate="backup"', "navigator.gnss_delay_estimate=true", "navigator.fuse_attitude_yaw=true",
                   "inject.backup_fix_when_armed=false", "navigator.motion_prior=false", "gravity.matcher=sequential",
-                  "gravity.eotvos_corrected=false", "gravity.seq_noise_corr_s=30",
-                  "gravity.seq_attitude_tau_s=300", "gravity.seq_attitude_tilt_sigma_rad=1e-5",
-                  "gravity.seq_attitude_heading_sigma_rad=0.005", "inject.max_h_acc_3d_m=3000",
-                  "inject.max_h_acc_2d_m=6000", "inject.max_v_acc_3d_m=200"]
+                  'gravity.reference="air_data"', "gravity.eotvos_corrected=false", "gravity.seq_noise_corr_s=1",
+                  "gravity.reading_delay_s=15", "gravity.seq_init_vel_sigma_mps=1", "gravity.seq_wind_walk_mps_rts=0.1",
+                  "gravity.seq_particles=500", "inject.max_h_acc_3d_m=20000", "inject.max_h_acc_2d_m=40000",
+                  "inject.max_v_acc_3d_m=200"]
 STREAMS_HZ = {"GLOBAL_POSITION_INT": 5, "SIMSTATE": 5, "ATTITUDE": 5, "GPS_RAW_INT": 1, "GPS2_RAW": 1,
               "EKF_STATUS_REPORT": 1, "HEARTBEAT": 1}
 EKF_READY_FLAGS = 0x10 | 0x200

@@ -204,6 +204,7 @@ def arm_summary(log: core.FlightLog, survey: Survey, modes: dict[int, str], kept
         "kept_up": bool(kept_up),
         "return_jump_m": _f(core.return_jump(log, off)) if math.isfinite(off) else None,
     }
+    out["yaw_err_deg"] = yaw_error_deg(log, on, off)
     level = healthy_level_m if healthy_level_m is not None else out["healthy_p95_m"]
     out["reconverge_s"] = _f(reconverge_s(t, err, off, level)) if level is not None and math.isfinite(off) else None
     if records is not None:
@@ -216,6 +217,22 @@ def arm_summary(log: core.FlightLog, survey: Survey, modes: dict[int, str], kept
         out["last_hacc_m"] = _f(float(own_hacc[last[-1]])) if last.size and own_fx[last[-1]] >= 3 else None
         out["own_mean_m"] = _f(float(own_err[sel].mean())) if sel.any() else None
     return out
+
+
+def yaw_error_deg(log: core.FlightLog, on: float, off: float) -> dict | None:
+    """EKF3's yaw (ATTITUDE) against SITL's (SIMSTATE) in the denial: mean and RMS of the wrapped difference, deg
+    (what the companion's air-data reference takes as heading; compared across arms, it shows whether the fixes sent
+    moved it)."""
+    if not (log.yaw and log.truth_yaw) or not math.isfinite(on):
+        return None
+    a, b = np.asarray(log.yaw, float), np.asarray(log.truth_yaw, float)
+    sel = (a[:, 0] >= on) & (a[:, 0] < off)
+    if not sel.any() or b.shape[0] < 2:
+        return None
+    tb = b[:, 0]
+    tru = np.unwrap(b[:, 1])
+    d = np.angle(np.exp(1j * (a[sel, 1] - np.interp(a[sel, 0], tb, tru))))
+    return {"mean": _f(float(np.degrees(d.mean()))), "rms": _f(float(np.degrees(np.sqrt(np.mean(d * d)))))}
 
 
 def validate_summary(s: dict) -> list[str]:
