@@ -134,6 +134,9 @@ class GravityConfig:
     air_wind_window_s: float = 300.0  # the wind held at a GNSS loss: the mean over this long before it
     # air data: the held wind's error, a random walk (1 sigma per sqrt(s)); its prior is seq_init_vel_sigma_mps
     seq_wind_walk_mps_rts: float = 0.1
+    # air data: the speed accuracy its states state is never below this (the autopilot fuses their velocity by it, and
+    # their velocity is made of the autopilot's own heading: a large value keeps that heading from following it)
+    air_speed_sigma_floor_mps: float = 0.0
     # a reading describes the vehicle this long before its stamp (a gravimeter averaging over a window: half of it)
     reading_delay_s: float = 0.0
 

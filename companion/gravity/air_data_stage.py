@@ -64,7 +64,8 @@ class AirDataGravityStage(Stage):
 
     def __init__(self, lmap: LocalGravityMap, cfg: SeqGravConfig, air: AirDataConfig | None = None, *,
                  sigma_mgal: float = 1.0, reading_delay_s: float = 0.0, source: str = "gravity:air_data",
-                 seed: int = 0, receiver_instance: int = 0, gnss_timeout_s: float = 0.6) -> None:
+                 seed: int = 0, receiver_instance: int = 0, gnss_timeout_s: float = 0.6,
+                 speed_sigma_floor_mps: float = 0.0) -> None:
         if not cfg.ins.air_data:
             raise ValueError("the air-data stage needs SeqGravConfig.ins.air_data = True")
         if lmap.frame is None:
@@ -80,8 +81,10 @@ class AirDataGravityStage(Stage):
         self.source = source
         self.receiver_instance = int(receiver_instance)
         self.gnss_timeout_s = float(gnss_timeout_s)
+        self.speed_sigma_floor_mps = float(speed_sigma_floor_mps)
         self._alt_m: float | None = None
         self._last_reading_t: float | None = None
+        self._gust_inst = 0.0  # the gusts' 1-sigma per axis in one sample (m/s)
         self._gust = (0.0, 0.0)  # (m/s over a reading window, m/sqrt(s)) at the last loss (_hold)
         self._good_t: float | None = None
         self._bad_t: float | None = None
@@ -148,6 +151,7 @@ class AirDataGravityStage(Stage):
         """At the loss: the gusts' effect measured over the GNSS period sets the reading noise they add (through
         the Eotvos term) and the position random walk they drive (never below the configured one)."""
         self._gust = self.dr.gust_stats(2.0 * self.delay_s)
+        self._gust_inst = self.dr.gust_stats(0.0)[0]
         self.filter.cfg = replace(self.cfg, pos_noise_m_rts=max(self.cfg.pos_noise_m_rts, self._gust[1]))
 
     def _reading(self, r: GravityReading) -> list[Event]:
@@ -210,6 +214,10 @@ class AirDataGravityStage(Stage):
         lon_o, lat_o = self.lmap.ne_to_xy((ne - err)[0], (ne - err)[1])
         v_n, v_e = vn - float(dv[0]), ve - float(dv[1])
         pv = np.diag(e.vel_cov_ne_m2ps2) if e.vel_cov_ne_m2ps2 is not None else np.full(2, 1e4)
+        # the instantaneous velocity also carries the gusts the held wind does not know; and a speed accuracy stated
+        # no better than speed_sigma_floor_mps keeps the autopilot from steering its own heading by this velocity
+        # (it is made of that heading: EKF3 fuses a GPS velocity with the stated accuracy, AP_NavEKF3_PosVelFusion)
+        pv = np.maximum(pv + self._gust_inst**2, self.speed_sigma_floor_mps**2)
         cd = list(s.cov_diag) + [0.0] * max(0, 6 - len(s.cov_diag))
         cd[0], cd[1], cd[3], cd[4], cd[5] = float(cov[0, 0]), float(cov[1, 1]), float(pv[0]), float(pv[1]), 1.0
         alt = self._alt_m if self._alt_m is not None else s.alt_msl_m
