@@ -129,7 +129,7 @@ class AirDataReckoner:
             return 0.0, 0.0
         a = np.asarray(self._wind, float)
         t, w = a[:, 0], a[:, 1:] - a[:, 1:].mean(axis=0)
-        dt = float(np.median(np.diff(t))) if t.size > 1 else 0.1
+        dt = float(t[-1] - t[0]) / (t.size - 1)  # the mean spacing (a receiver may repeat a fix's time stamp)
         if not dt > 0:
             return 0.0, 0.0
 

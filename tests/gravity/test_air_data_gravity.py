@@ -49,6 +49,21 @@ def test_reckoner_holds_the_learnt_wind_and_integrates_on_the_ellipsoid():
     assert (dr.lon - lon) * math.radians(1) * rn * math.cos(math.radians(lat)) == pytest.approx(18.0 * 100.1, rel=2e-3)
 
 
+def test_gust_stats_with_repeated_time_stamps():
+    """A receiver repeating a fix's stamp (SITL's 5 Hz GPS sent at 10 Hz) must not make the sample spacing zero."""
+    dr = AirDataReckoner()
+    rng = np.random.default_rng(0)
+    for k in range(3000):
+        t = 0.2 * (k // 2)
+        dr.heading(t, 0.0)
+        dr.airspeed(t, 20.0)
+        dr.gnss(t, *ORIGIN, np.array([20.0, 0.0]) + rng.normal(0.0, 0.5, 2))
+    sig_avg, walk = dr.gust_stats(30.0)
+    assert 0.0 < sig_avg < 0.5 * 0.5  # white 0.5 m/s averaged over 30 s (150 samples): ~0.04
+    assert dr.gust_stats(0.0)[0] == pytest.approx(0.5, rel=0.1)
+    assert walk > 0.0
+
+
 class Flight:
     """Truth of a survey flown on the wing: lines north/south of ``line_m``, ``spacing_m`` apart, the heading set to
     hold the line in the wind (crab), gusts a first-order Gauss-Markov process."""
