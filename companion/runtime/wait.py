@@ -4,7 +4,8 @@ A GPS_INPUT follows a navigator output (FusedState), which comes at a 10 Hz tick
 leaves the navigator's reorder buffer, i.e. once the newest event is ``reorder_window_s`` past the first event after
 the tick (companion.nav.reorder). An event that cannot bring that about, of the streams the navigator takes (IMU
 samples, attitude, receiver fixes, the autopilot's position), only changes the navigator's state: it may wait, in
-order, until the next event that can. Woken once per output instead of once per message, the loop runs the same
+order, until the next event that can. Woken twice per output instead of once per message (once :data:`LEAD_S`
+ahead, to run what waited, so that the event that makes the output finds little before it), the loop runs the same
 events in the same order with its caches warm. Everything else (a reboot, a heartbeat, a gravimeter reading,
 SYSTEM_TIME, ...) is taken at once.
 
@@ -27,6 +28,9 @@ MAY_WAIT = (ImuSample, Attitude, GnssFix, AutopilotPosition, AutopilotAltitude)
 
 #: event times kept to find the first after a tick: this far (s) behind the newest, past the reorder window
 KEEP_S = 2.0
+#: the loop is woken once this long (event time, s) before the output is due, to run what waited: the event that
+#: makes the output then finds little before it (a 20 Hz stream or faster has an event in this lead)
+LEAD_S = 0.05
 
 
 class OutputWait:
@@ -34,13 +38,14 @@ class OutputWait:
 
     def __init__(self, reorder_window_s: float) -> None:
         self.horizon_s = reorder_window_s
-        #: the navigator's next tick, published by the loop; -inf (never wait) until it is
+        #: the navigator's next tick, published by the loop; nothing waits until it is finite (a fix scheduled it)
         self.next_output_s = -math.inf
         self._tick = -math.inf  # the tick _first was found for
         self._first = -math.inf  # the earliest event time seen after it
         self._newest_s = -math.inf  # the newest event time seen
         self._recent: deque[float] = deque()  # event times seen, in arrival order, back to newest - horizon - KEEP_S
         self._forgot_s = -math.inf  # the latest time dropped from _recent
+        self._led = math.nan  # the first event after the tick whose output the loop was last woken ahead of
 
     def may_wait(self, events: list[Event]) -> bool:
         h = self.horizon_s
@@ -61,6 +66,11 @@ class OutputWait:
             # the navigator releases every event up to newest - h: the tick goes once the first after it is among them
             if type(ev) not in MAY_WAIT or not first > newest - h:
                 ok = False
+        if not math.isfinite(tick):
+            ok = False  # before the first output is scheduled (by a fix the navigator has not yet released): take all
+        if ok and newest > first + h - LEAD_S and first != self._led:
+            self._led = first  # once per output: run what waited now, not when the output is due
+            ok = False
         self._first, self._newest_s = first, newest
         while recent and not recent[0] >= newest - h - KEEP_S:
             self._forgot_s = max(self._forgot_s, recent.popleft())

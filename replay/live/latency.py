@@ -43,6 +43,14 @@ def proc_sample(pid: int) -> tuple[float, float]:
     return cpu, rss
 
 
+def main_thread_cpu_s(pid: int) -> float:
+    """CPU seconds (user+system) of a process's main thread: the companion's event loop and pipeline (the other
+    threads: the link's reader, mostly)."""
+    with open(f"/proc/{pid}/task/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration-s", type=float, default=1800.0, help="measured time after the warm-up (default 1800)")
@@ -86,11 +94,13 @@ def main() -> int:
         time.sleep(args.warmup_s)
         t0 = time.monotonic()
         cpu0, rss0 = proc_sample(comp.pid)
+        loop_cpu0 = main_thread_cpu_s(comp.pid)
         samples.append((0.0, cpu0, rss0))
         while time.monotonic() - t0 < args.duration_s:
             time.sleep(min(10.0, args.duration_s - (time.monotonic() - t0) + 0.01))
             cpu, rss = proc_sample(comp.pid)
             samples.append((time.monotonic() - t0, cpu, rss))
+            loop_cpu = main_thread_cpu_s(comp.pid)
             print(f"\r{samples[-1][0]:7.0f} s  CPU {100 * (cpu - cpu0) / samples[-1][0]:5.1f} %  RSS {rss:6.1f} MiB",
                   end="", file=sys.stderr, flush=True)
         print(file=sys.stderr)
@@ -107,6 +117,7 @@ def main() -> int:
         return 1
     wall = samples[-1][0]
     cpu_pct = 100.0 * (samples[-1][1] - samples[0][1]) / wall
+    loop_pct = 100.0 * (loop_cpu - loop_cpu0) / wall
     if not mcap.exists():  # record.segment_s: the run's metadata is in the last segment
         mcap = sorted(args.workdir.glob(f"{mcap.stem}-*.mcap"))[-1]
     summary = summarize(mcap)
@@ -132,6 +143,8 @@ def main() -> int:
             )
     lines += [
         f"| CPU of the companion process | {cpu_pct:.1f} % of one core | <= 15 % |",
+        f"| of which the event loop's thread / the others (the link's reader) | {loop_pct:.1f} % / "
+        f"{cpu_pct - loop_pct:.1f} % | - |",
         f"| RSS at start / end / max | {samples[0][2]:.1f} / {samples[-1][2]:.1f} / {rss_max:.1f} MiB | flat |",
         f"| GPS_INPUT sent | {sent} in {total_s:.0f} s ({sent / total_s:.1f} Hz) | >= 5 Hz |",
     ]
