@@ -68,6 +68,7 @@ SHED_AGE_S = 0.05
 #: shedding ends once the reader has not been behind for this long
 SHED_HOLD_S = 1.0
 #: a batch the loop's ``may_wait`` let wait is delivered at the latest this long (perf_counter s) after it was read
+#: (docs/decisions/0014-live-wake-ups-and-compiled-core.md)
 HOLD_MAX_S = 0.2
 
 

@@ -29,7 +29,8 @@ MAY_WAIT = (ImuSample, Attitude, GnssFix, AutopilotPosition, AutopilotAltitude)
 #: event times kept to find the first after a tick: this far (s) behind the newest, past the reorder window
 KEEP_S = 2.0
 #: the loop is woken once this long (event time, s) before the output is due, to run what waited: the event that
-#: makes the output then finds little before it (a 20 Hz stream or faster has an event in this lead)
+#: makes the output then finds little before it (a 20 Hz stream or faster has an event in this lead). Measured:
+#: docs/decisions/0014-live-wake-ups-and-compiled-core.md
 LEAD_S = 0.05
 
 

@@ -369,7 +369,9 @@ def main() -> None:
             "running); CPU time, so the load matters less than in wall time, but it still slows both sides.\n\n")
     path = results_file("ingest")
     title = "Ingest and replay throughput"
-    cmd = f"    .venv/bin/python -m replay.live.throughput --repeat {args.repeat} --hours {args.hours:g}\n\n"
+    cmd = (f"    .venv/bin/python -m replay.live.throughput --repeat {args.repeat}"
+           + ("" if "memory" in args.skip else f" --hours {args.hours:g}")
+           + (f" --skip {' '.join(args.skip)}" if args.skip else "") + "\n\n")
     if "speed" not in args.skip:
         publish("## Speed against pymavlink's raw parse\n\n" + cmd + head +
                 f"Both sides in one process, interleaved, {args.repeat} times; CPU s are medians, the ratio "
