@@ -5,14 +5,17 @@ Field by field (what ArduPilot's AP_GPS_MAV driver and EKF3 do with it, observed
 * ``lat``/``lon``: degE7 WGS84 from the fused state. ``alt``: metres above mean sea level; the navigator
   carries ``alt_msl_m`` (the receiver's MSL altitude as ArduPilot reports it, see :mod:`companion.events`)
   so it is sent unchanged -- no geoid model is applied here.
-* ``vn``/``ve``/``vd``: NED velocity (m/s). Always filled: ArduPilot takes an ignored velocity as zero.
+* ``vn``/``ve``/``vd``: NED velocity (m/s). Always filled: ArduPilot takes an ignored velocity as zero. ``vd`` is
+  flagged ignored while its sigma exceeds the ``speed_accuracy`` sent (EKF3 weighs all three components by that one
+  accuracy: a vertical velocity worse than it would be fused overconfident).
 * ``horiz_accuracy``/``vert_accuracy``/``speed_accuracy``: from the filter covariance (``sigma_h_m`` =
   sqrt(P_nn + P_ee), ``sigma_v_m`` = sqrt(P_dd), speed: sqrt(max(P_vn, P_ve))), so they grow while the
   navigator coasts. A Kalman filter fed with a receiver's time-correlated errors (multipath, ionosphere:
   minutes of correlation) believes it averages them down; it cannot. So the position accuracies are never
   reported better than the real receiver's own last reported accuracy (``floor_to_receiver``). ``hdop``/``vdop``: the same sigmas divided by an assumed user range error
   (``uere_m``); the HDOP must not be flagged as ignored or EKF3 never passes its GPS checks.
-* ``fix_type``: 3 (3D) only while sigma_h <= ``max_h_acc_3d_m`` and sigma_v <= ``max_v_acc_3d_m``;
+* ``fix_type``: 3 (3D) only while sigma_h <= ``max_h_acc_3d_m`` and sigma_v <= ``max_v_acc_3d_m`` (or the
+  vertical is flagged ignored: beyond ``max_v_acc_alt_m`` the message claims nothing about it);
   2 (2D) while sigma_h <= ``max_h_acc_2d_m``; 1 (no fix) beyond. ``satellites_visible``: the configured
   ``satellites`` (>= 6, which ArduPilot requires) with a 2D/3D fix, 0 without.
 * ``time_week``/``time_week_ms``: GPS time of the solution from the receiver's own GPS time when the
@@ -120,8 +123,10 @@ class InjectConfig:
     max_v_acc_3d_m: float = 20.0  # ... and sigma_v within this
     max_h_acc_2d_m: float = 50.0  # 2D fix up to this sigma_h; no fix beyond
     # sigma_v beyond this: altitude, vertical velocity and its accuracy are flagged ignored (ArduPilot then keeps its
-    # barometric height; the navigator has no vertical aid of its own once the receiver is gone) and `alt` repeats
-    # the last altitude sent with a smaller sigma_v
+    # barometric height; the navigator has no vertical aid of its own once the receiver is gone), `alt` repeats
+    # the last altitude sent with a smaller sigma_v, and the fix type follows the horizontal alone. Set it equal to
+    # max_v_acc_3d_m where the autopilot takes its height from its barometer (EK3_SRC1_POSZ = 1): a free vertical
+    # channel then never degrades a good horizontal fix to 2D (docs/decisions/0001)
     max_v_acc_alt_m: float = 200.0
     satellites: int = 10  # satellites_visible reported with a fix (ArduPilot needs >= 6)
     uere_m: float = UERE_M  # HDOP = sigma_h / uere_m, VDOP = sigma_v / uere_m
@@ -519,7 +524,7 @@ class Injector(Stage):
             alt, vd = (self._last_alt_m if self._last_alt_m is not None else 0.0), 0.0
         else:
             self._last_alt_m = alt
-        if sh <= c.max_h_acc_3d_m and sv <= c.max_v_acc_3d_m:
+        if sh <= c.max_h_acc_3d_m and (sv <= c.max_v_acc_3d_m or alt_ignored):
             fix, why = int(FixType.FIX_3D), "within 3D bounds"
         elif sh <= c.max_h_acc_2d_m:
             fix = int(FixType.FIX_2D)
@@ -531,6 +536,9 @@ class Injector(Stage):
         cov = s.cov_diag
         if len(cov) >= 6 and _finite(cov[3], cov[4]) and min(cov[3], cov[4]) >= 0:
             speed_acc = math.sqrt(max(cov[3], cov[4]))
+            if not flags & IGNORE_VEL_VERT and not (_finite(cov[5]) and 0 <= cov[5] <= speed_acc**2):
+                flags |= IGNORE_VEL_VERT
+                vd = 0.0
         else:
             speed_acc, flags = 0.0, flags | IGNORE_SPEED_ACCURACY
         week = week_ms = 0

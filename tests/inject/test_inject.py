@@ -301,6 +301,40 @@ def test_altitude_without_vertical_aid_is_flagged_ignored_not_sent():
         InjectConfig(max_v_acc_3d_m=20.0, max_v_acc_alt_m=10.0)
 
 
+def test_a_free_vertical_channel_does_not_degrade_a_good_horizontal_fix_where_the_height_is_ignored():
+    """With max_v_acc_alt_m = max_v_acc_3d_m (an autopilot on its barometer), a vertical sigma beyond it flags the
+    vertical ignored and the fix stays 3D on its horizontal accuracy; with the default band (20-200 m) the same state
+    is a 2D fix carrying its altitude, and a poor horizontal is 2D either way."""
+    from companion.inject.gps_input import IGNORE_ALT
+
+    utc = SystemTime(t_s=5.0, unix_time_s=calendar.timegm((2025, 3, 15, 1, 30, 0)))
+    baro = Injector(InjectConfig(mode="shadow", activate="always", max_v_acc_3d_m=20.0, max_v_acc_alt_m=20.0))
+    baro.process(utc)
+    (ok,) = baro.process(state(t_s=10.0, sigma_h=3.0, sigma_v=15.0))
+    assert ok.fix_type == FixType.FIX_3D and ok.ignore_flags & IGNORE_ALT == 0
+    (free,) = baro.process(state(t_s=11.0, sigma_h=3.0, sigma_v=25.0))
+    assert free.fix_type == FixType.FIX_3D and free.ignore_flags & IGNORE_ALT and free.alt_msl_m == ok.alt_msl_m
+    (poor,) = baro.process(state(t_s=12.0, sigma_h=30.0, sigma_v=25.0))
+    assert poor.fix_type == FixType.FIX_2D
+    band = Injector(InjectConfig(mode="shadow", activate="always", max_v_acc_3d_m=20.0))
+    band.process(utc)
+    (two_d,) = band.process(state(t_s=10.0, sigma_h=3.0, sigma_v=25.0))
+    assert two_d.fix_type == FixType.FIX_2D and two_d.ignore_flags & IGNORE_ALT == 0
+
+
+def test_vertical_velocity_worse_than_the_stated_speed_accuracy_is_flagged_ignored():
+    """EKF3 weighs vn, ve and vd by the one speed_accuracy sent (the horizontal sigma): a vd with a larger sigma is
+    flagged ignored (sent as 0) rather than fused overconfident; within it, vd goes out as it is."""
+    from companion.inject.gps_input import IGNORE_VEL_VERT
+
+    inj = Injector(InjectConfig(mode="shadow", activate="always"))
+    inj.process(SystemTime(t_s=5.0, unix_time_s=calendar.timegm((2025, 3, 15, 1, 30, 0))))
+    (good,) = inj.process(state(t_s=10.0))  # sigma vd 0.1 m/s, speed accuracy 0.3 m/s
+    assert good.ignore_flags & IGNORE_VEL_VERT == 0 and good.vel_d_mps == 0.5 and good.speed_acc_mps == pytest.approx(0.3)
+    (bad,) = inj.process(state(t_s=11.0, cov_diag=(1.1, 1.1, 6.25, 0.04, 0.09, 0.25)))  # sigma vd 0.5 m/s
+    assert bad.ignore_flags & IGNORE_VEL_VERT and bad.vel_d_mps == 0.0 and bad.fix_type == FixType.FIX_3D
+
+
 def test_each_message_describes_the_epoch_it_claims_on_a_simulated_flight():
     """The navigator's state is final only once its reorder window (0.25 s) has passed; ArduPilot fuses a GPS_INPUT as
     the vehicle autopilot_lag_s (0.2 s) before it arrives. Each message must describe that epoch: its position matches
