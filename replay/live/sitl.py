@@ -75,7 +75,7 @@ COMPANION_PARAMS = {
 #: more accurate: docs/decisions/0001-takeover-trust.md), and fixes for the epoch GPS2_DELAY_MS = 100 tells EKF3
 COMPANION_SETS = ['inject.activate="takeover"', "navigator.gnss_delay_estimate=true",
                   "navigator.fuse_attitude_yaw=true", "inject.backup_fix_when_armed=false", "navigator.motion_prior=false",
-                  "inject.autopilot_lag_s=0.1"]
+                  "inject.autopilot_lag_s=0.1", "inject.max_v_acc_alt_m=20"]
 STREAMS_HZ = {  # requested on the harness's own link (SERIAL0) with SET_MESSAGE_INTERVAL
     "GLOBAL_POSITION_INT": 25, "SIMSTATE": 50, "ATTITUDE": 50, "LOCAL_POSITION_NED": 10, "GPS_RAW_INT": 5,
     "GPS2_RAW": 5, "EKF_STATUS_REPORT": 2, "SYS_STATUS": 1, "HEARTBEAT": 1,

@@ -31,7 +31,8 @@ from replay.live.sitl import COMPANION_SETS
 
 #: the recorded input topics the navigator and injector use, and their event types
 INPUTS = {"/input/imu": ev.ImuSample, "/input/gnss": ev.GnssFix, "/input/attitude": ev.Attitude,
-          "/input/heartbeat": ev.Heartbeat, "/input/system_time": ev.SystemTime}
+          "/input/heartbeat": ev.Heartbeat, "/input/system_time": ev.SystemTime,
+          "/input/altitude": ev.AutopilotAltitude}
 
 
 def recorded_inputs(mcap: Path) -> list[ev.Event]:
