@@ -44,10 +44,15 @@ class DragConfig:
     max_rel_sigma_k: float = 0.2  # the coefficient's standard error must be within this fraction of it
     sigma_scale: float = 2.0  # measurement sigma = residual scatter x this
     min_fix_age_s: float = 1.5  # fused only once no GNSS fix has come for this long
+    # the model's lack of fit at the current air speed (SpeedMisfit): bins of misfit_bin_mps; a bin with fewer than
+    # misfit_min_rows forgotten intervals learnt is outside what the fit has seen: no measurement there
+    misfit_bin_mps: float = 1.0
+    misfit_min_rows: float = 5.0
 
     def __post_init__(self) -> None:
         if not (self.interval_s > 0 and self.tau_s > 0 and self.min_rows >= 5 and self.min_k_per_s > 0
-                and self.max_rel_sigma_k > 0 and self.sigma_scale > 0):
+                and self.max_rel_sigma_k > 0 and self.sigma_scale > 0 and self.misfit_bin_mps > 0
+                and self.misfit_min_rows >= 0):
             raise ValueError("DragConfig: need interval_s, tau_s, min_k_per_s, max_rel_sigma_k, sigma_scale > 0 and "
                              "min_rows >= 5")
 
@@ -60,6 +65,47 @@ class DragInterval:
     f_xy: tuple[float, float]
     rows: np.ndarray  # (2, 5): the model's regressors, interval mean
     rows_end: np.ndarray  # (2, 5): at the end of the interval (the state the measurement is compared with)
+    air_speed_mps: float = math.nan  # horizontal body air speed, interval mean ...
+    air_speed_end_mps: float = math.nan  # ... and at its end
+
+
+class SpeedMisfit:
+    """Where a fitted drag model is wrong: its mean residual per band of air speed.
+
+    The model is linear in the air velocity; a real airframe's drag is not (a bluff-body term grows with its square,
+    as EKF3's EK3_DRAG_BCOEF_* beside EK3_DRAG_MCOEF). A fit learnt mostly at cruise is then wrong at a hover by a
+    constant offset, and fused once a second that offset reads as a velocity the filter believes to centimetres per
+    second. Per band the forgotten sums of the regressors and the accelerometer give the band's mean residual under
+    the current fit exactly; the measurement's noise takes its square (a bias, not averaged down), and a band the fit
+    has not seen gives no measurement."""
+
+    def __init__(self, bin_mps: float, n_bins: int = 60) -> None:
+        self.bin_mps = bin_mps
+        self.rows = np.zeros((n_bins, 2, 5))
+        self.f = np.zeros((n_bins, 2))
+        self.n = np.zeros(n_bins)
+
+    def band(self, air_speed_mps: float) -> int | None:
+        if not math.isfinite(air_speed_mps):
+            return None
+        return min(int(air_speed_mps / self.bin_mps), len(self.n) - 1)
+
+    def learn(self, lam: float, air_speed_mps: float, rows: np.ndarray, f_xy) -> None:
+        self.rows *= lam
+        self.f *= lam
+        self.n *= lam
+        b = self.band(air_speed_mps)
+        if b is not None:
+            self.rows[b] += rows
+            self.f[b] += f_xy
+            self.n[b] += 1.0
+
+    def residual(self, air_speed_mps: float, theta: np.ndarray) -> tuple[float, np.ndarray]:
+        """(forgotten intervals learnt in the band, the band's mean residual per axis under ``theta``)."""
+        b = self.band(air_speed_mps)
+        if b is None or self.n[b] <= 0:
+            return 0.0, np.zeros(2)
+        return float(self.n[b]), (self.f[b] - self.rows[b] @ theta) / self.n[b]
 
 
 def drag_rows(C: np.ndarray, v_ned) -> np.ndarray:
@@ -87,6 +133,8 @@ class RotorDrag:
         self._zz = np.zeros(2)
         self._rows_w = 0.0  # forgotten number of rows learnt
         self.theta: np.ndarray | None = None
+        self.misfit = SpeedMisfit(self.config.misfit_bin_mps)
+        self._speed_sum = 0.0
 
     def add_accel(self, accel_frd_mps2) -> None:
         self._fx += accel_frd_mps2[0]
@@ -98,27 +146,39 @@ class RotorDrag:
         self._fx = self._fy = 0.0
         self._nf = self._nr = 0
         self._rows = np.zeros((2, 5))
+        self._speed_sum = 0.0
         self._t0 = None
 
     def tick(self, t: float, C: np.ndarray, v_ned) -> DragInterval | None:
         """Sample the INS at an output tick; returns the interval when one is complete."""
         rows = drag_rows(C, v_ned)
+        speed = self._air_speed(C, v_ned)
         if self._t0 is None or t - self._t0 > 2.0 * self.config.interval_s:  # start, or ticks missed: restart
             self.reset()
             self._t0 = t
             return None
         self._rows += rows
+        self._speed_sum += speed
         self._nr += 1
         if t - self._t0 < self.config.interval_s - 1e-9:
             return None
         out = None
         if self._nf > 0:
-            out = DragInterval(t, (self._fx / self._nf, self._fy / self._nf), self._rows / self._nr, rows)
+            out = DragInterval(t, (self._fx / self._nf, self._fy / self._nf), self._rows / self._nr, rows,
+                               self._speed_sum / self._nr, speed)
         self._t0 = t
         self._fx = self._fy = 0.0
         self._nf = self._nr = 0
         self._rows = np.zeros((2, 5))
+        self._speed_sum = 0.0
         return out
+
+    def _air_speed(self, C: np.ndarray, v_ned) -> float:
+        """Horizontal body air speed with the fit's wind (none before the coefficient is positive)."""
+        th = self.theta
+        w = (th[1] / th[0], th[2] / th[0]) if th is not None and th[0] >= self.config.min_k_per_s else (0.0, 0.0)
+        va = C.T @ (np.asarray(v_ned, dtype=float) - np.array([w[0], w[1], 0.0]))
+        return float(math.hypot(va[0], va[1]))
 
     def learn(self, iv: DragInterval) -> None:
         """One interval while GNSS aids: a row pair of the forgotten least-squares fit."""
@@ -131,6 +191,7 @@ class RotorDrag:
         self._ry = lam * self._ry + py * fy
         self._zz = lam * self._zz + np.array([fx * fx, fy * fy])
         self._rows_w = lam * self._rows_w + 2.0
+        self.misfit.learn(lam, iv.air_speed_mps, iv.rows, iv.f_xy)
         self.theta = np.linalg.solve(self._Ax + self._Ay + _PRIOR_INFO, self._rx + self._ry)
 
     def residual_var(self) -> np.ndarray:
@@ -171,7 +232,10 @@ class RotorDrag:
             return None
         th, cov, s2 = model
         k = float(th[0])
-        R = np.diag(s2) * c.sigma_scale**2 + iv.rows_end @ cov @ iv.rows_end.T
+        n_band, bias = self.misfit.residual(iv.air_speed_end_mps, th)
+        if n_band < c.misfit_min_rows:
+            return None  # an air speed the fit has not seen
+        R = np.diag(s2) * c.sigma_scale**2 + iv.rows_end @ cov @ iv.rows_end.T + np.diag(bias**2)
         # the interval mean carried to its end with the model (the innovation is that of the interval means)
         z = np.asarray(iv.f_xy) + (iv.rows_end - iv.rows) @ th
         return DragMeasurement(t, "rotor_drag", (float(z[0]), float(z[1])), k, (float(th[1] / k), float(th[2] / k)),

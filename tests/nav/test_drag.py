@@ -127,3 +127,73 @@ def test_measurement_learns_while_gnss_aids_and_is_given_once_it_is_gone():
         m = m or drag.measurement(round(t + 0.2 + 0.1 * j, 9), C, tuple(v), 2.0 + 0.1 * j)
     assert m is not None and m.kind == "rotor_drag"
     assert m.k_per_s == pytest.approx(K, rel=0.01) and m.wind_ne_mps == pytest.approx(WIND, abs=0.05)
+
+
+def _quadratic_drag_intervals(rng, n, k=0.29, c=0.028):
+    """A copter that mostly cruises forward at ~7.5 m/s and sometimes flies slower (1.5-7 m/s), with a drag that is not
+    linear: f = -k v_a - c |v_a| v_a per body axis (SITL's multicopter: momentum plus bluff-body drag)."""
+    out = []
+    for i in range(n):
+        C = dcm_from_quat(quat_from_euler(0.0, -0.35, rng.uniform(-math.pi, math.pi)))
+        speed = rng.normal(7.5, 0.2) if rng.uniform() < 0.7 else rng.uniform(1.5, 7.0)
+        v = C @ np.array([speed, 0.0, 0.0])
+        v[2] = 0.0
+        vb = C.T @ v
+        f = -k * vb[:2] - c * np.abs(vb[:2]) * vb[:2] + rng.normal(0, 0.05, 2)
+        rows = drag_rows(C, v)
+        sp = float(math.hypot(vb[0], vb[1]))
+        out.append((C, v, DragInterval(float(i), (float(f[0]), float(f[1])), rows, rows, sp, sp)))
+    return out
+
+
+def test_the_linear_fit_s_misfit_at_an_air_speed_enters_the_noise_and_unseen_speeds_give_nothing():
+    """A linear fit learnt mostly at cruise: at cruise its band residual is small, at 1.5 m/s it is the fit's true
+    error there (the noise takes it), and at a hover (a band never learnt) there is no measurement: fused, the fit's
+    offset would read as ~1 m/s of velocity the filter believes to a few cm/s."""
+    rng = np.random.default_rng(7)
+    drag = RotorDrag()
+    for _C, _v, iv in _quadratic_drag_intervals(rng, 600):
+        drag.learn(iv)
+    th = drag.model()[0]
+    k, c = 0.29, 0.028
+
+    def model_error(speed):  # the fit's prediction minus the truth along body x, at speed along x
+        C = dcm_from_quat(quat_from_euler(0.0, -0.35, 0.3))
+        v = C @ np.array([speed, 0.0, 0.0])
+        v[2] = 0.0
+        vb = C.T @ v
+        return float((drag_rows(C, v) @ th)[0] - (-k * vb[0] - c * abs(vb[0]) * vb[0])), float(math.hypot(vb[0], vb[1]))
+
+    err_cruise, s_cruise = model_error(7.5)
+    err_slow, s_slow = model_error(1.6)
+    n_c, bias_c = drag.misfit.residual(s_cruise, th)
+    n_s, bias_s = drag.misfit.residual(s_slow, th)
+    assert n_c > 50 and abs(bias_c[0]) < 0.1
+    assert abs(err_slow) > 0.08 and abs(err_slow) > 3 * abs(bias_c[0])  # the linear fit is wrong at low speed ...
+    # ... and knows it: the band's mean residual (over 1-2 m/s) has the sign and size of the fit's error there
+    assert n_s >= DragConfig().misfit_min_rows and bias_s[0] * -err_slow > 0 and 0.5 < bias_s[0] / -err_slow < 1.5
+    assert drag.misfit.residual(0.3, th)[0] == 0.0  # a hover: never learnt
+
+
+def test_no_measurement_at_an_air_speed_the_fit_has_not_seen():
+    rng = np.random.default_rng(8)
+    drag = RotorDrag()
+    t = 0.0
+    for C, v, iv in _quadratic_drag_intervals(rng, 300):
+        for j in range(10):
+            drag.add_accel((iv.f_xy[0], iv.f_xy[1], -9.8))
+            t = round(t + 0.1, 9)
+            drag.measurement(t, C, tuple(v), 0.5)
+    assert drag.model() is not None
+    C = dcm_from_quat(quat_from_euler(0.0, -0.35, 0.0))
+    got = {}
+    for speed in (7.5, 0.2):
+        v = C @ np.array([speed, 0.0, 0.0])
+        v[2] = 0.0
+        m = None
+        for j in range(12):
+            drag.add_accel((-2.0, 0.0, -9.8))
+            t = round(t + 0.1, 9)
+            m = m or drag.measurement(t, C, tuple(v), 2.0 + 0.1 * j)
+        got[speed] = m
+    assert got[7.5] is not None and got[0.2] is None
