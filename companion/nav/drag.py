@@ -46,6 +46,7 @@ class DragConfig:
     min_fix_age_s: float = 1.5  # fused only once no GNSS fix has come for this long
     # the model's lack of fit at the current air speed (SpeedMisfit): bins of misfit_bin_mps; a bin with fewer than
     # misfit_min_rows forgotten intervals learnt is outside what the fit has seen: no measurement there
+    # (docs/decisions/0001, "What ended the 60 s takeovers")
     misfit_bin_mps: float = 1.0
     misfit_min_rows: float = 5.0
 
