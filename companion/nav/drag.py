@@ -44,8 +44,8 @@ class DragConfig:
     max_rel_sigma_k: float = 0.2  # the coefficient's standard error must be within this fraction of it
     sigma_scale: float = 2.0  # measurement sigma = residual scatter x this
     min_fix_age_s: float = 1.5  # fused only once no GNSS fix has come for this long
-    # the model's lack of fit at the current air speed (SpeedMisfit): bins of misfit_bin_mps; a bin with fewer than
-    # misfit_min_rows forgotten intervals learnt is outside what the fit has seen: no measurement there
+    # the model's lack of fit at the current air speed (SpeedMisfit): bins of misfit_bin_mps; in a bin with fewer
+    # than misfit_min_rows forgotten intervals learnt the model is an extrapolation, its error taken as its whole claim
     # (docs/decisions/0001, "What ended the 60 s takeovers")
     misfit_bin_mps: float = 1.0
     misfit_min_rows: float = 5.0
@@ -77,8 +77,8 @@ class SpeedMisfit:
     as EKF3's EK3_DRAG_BCOEF_* beside EK3_DRAG_MCOEF). A fit learnt mostly at cruise is then wrong at a hover by a
     constant offset, and fused once a second that offset reads as a velocity the filter believes to centimetres per
     second. Per band the forgotten sums of the regressors and the accelerometer give the band's mean residual under
-    the current fit exactly; the measurement's noise takes its square (a bias, not averaged down), and a band the fit
-    has not seen gives no measurement."""
+    the current fit exactly; the measurement's noise takes its square, and in a band the fit has not seen the square
+    of the model's whole prediction (an extrapolation may be wrong by all it claims)."""
 
     def __init__(self, bin_mps: float, n_bins: int = 60) -> None:
         self.bin_mps = bin_mps
@@ -235,7 +235,8 @@ class RotorDrag:
         k = float(th[0])
         n_band, bias = self.misfit.residual(iv.air_speed_end_mps, th)
         if n_band < c.misfit_min_rows:
-            return None  # an air speed the fit has not seen
+            # an air speed the fit has not seen: the model is an extrapolation there, its error as large as its claim
+            bias = iv.rows_end @ th
         R = np.diag(s2) * c.sigma_scale**2 + iv.rows_end @ cov @ iv.rows_end.T + np.diag(bias**2)
         # the interval mean carried to its end with the model (the innovation is that of the interval means)
         z = np.asarray(iv.f_xy) + (iv.rows_end - iv.rows) @ th
