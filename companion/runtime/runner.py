@@ -118,7 +118,9 @@ class Runtime:
                                                  extra_stages=[*stages, self.injector])
         #: the navigator's batches between outputs wait for the next output (companion.runtime.wait)
         self.navigator = next((st for st in self.pipeline.stages if isinstance(st, Navigator)), None)
-        self.output_wait = OutputWait(self.navigator.config.reorder_window_s) if self.navigator is not None else None
+        nc = self.navigator.config if self.navigator is not None else None
+        self.output_wait = (OutputWait(nc.reorder_window_s, nc.future_outlier_s, nc.future_confirm_n)
+                            if nc is not None else None)
         if self.output_wait is not None:
             self.link.may_wait = self.output_wait.may_wait
         self.notifier = notifier if notifier is not None else Notifier()

@@ -34,11 +34,22 @@ KEEP_S = 2.0
 LEAD_S = 0.05
 
 
-class OutputWait:
-    """``may_wait(events)``: True when none of the events can release a navigator output (see the module doc)."""
+#: event times kept at most (memory stays bounded whatever the times)
+MAX_KEPT = 20_000
 
-    def __init__(self, reorder_window_s: float) -> None:
+
+class OutputWait:
+    """``may_wait(events)``: True when none of the events can release a navigator output (see the module doc).
+
+    An event stamped more than ``outlier_s`` ahead of the newest is not counted until ``confirm_n`` consecutive ones
+    confirm the jump, as the navigator's reorder buffer does (companion.nav.reorder): one bad time stamp would
+    otherwise keep the loop awake for every message until the stream caught up with it."""
+
+    def __init__(self, reorder_window_s: float, outlier_s: float = math.inf, confirm_n: int = 1) -> None:
         self.horizon_s = reorder_window_s
+        self.outlier_s = outlier_s
+        self.confirm_n = confirm_n
+        self._ahead: list[float] = []  # times far ahead of the newest, waiting for confirmation
         #: the navigator's next tick, published by the loop; nothing waits until it is finite (a fix scheduled it)
         self.next_output_s = -math.inf
         self._tick = -math.inf  # the tick _first was found for
@@ -57,13 +68,28 @@ class OutputWait:
                            min((t for t in self._recent if t > tick), default=math.inf))
         first, newest, recent = self._first, self._newest_s, self._recent
         ok = True
+        ahead = self._ahead
         for ev in events:
             t = ev.t_s
-            recent.append(t)
-            if t > newest:
-                newest = t
-            if tick < t < first:
-                first = t
+            if newest != -math.inf and t > newest + self.outlier_s:
+                ok = False  # the navigator holds it (and the loop looks at it at once)
+                if ahead and abs(t - ahead[0]) > self.outlier_s:
+                    del ahead[:]
+                ahead.append(t)
+                if len(ahead) < self.confirm_n:
+                    continue
+                times = list(ahead)  # the stream really jumped
+                del ahead[:]
+            else:
+                if ahead:
+                    del ahead[:]  # back on the stream clock: they were outliers (the navigator drops them)
+                times = (t,)
+            for t in times:
+                recent.append(t)
+                if t > newest:
+                    newest = t
+                if tick < t < first:
+                    first = t
             # the navigator releases every event up to newest - h: the tick goes once the first after it is among them
             if type(ev) not in MAY_WAIT or not first > newest - h:
                 ok = False
@@ -73,6 +99,6 @@ class OutputWait:
             self._led = first  # once per output: run what waited now, not when the output is due
             ok = False
         self._first, self._newest_s = first, newest
-        while recent and not recent[0] >= newest - h - KEEP_S:
+        while recent and (not recent[0] >= newest - h - KEEP_S or len(recent) > MAX_KEPT):
             self._forgot_s = max(self._forgot_s, recent.popleft())
         return ok

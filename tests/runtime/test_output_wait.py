@@ -105,6 +105,23 @@ def test_an_event_that_could_release_an_output_never_waits():
     assert not late.may_wait([imu(1.02)])  # after the tick, older than the newest - window: released at once
 
 
+def test_a_time_stamp_far_ahead_wakes_the_loop_without_stopping_what_follows_from_waiting():
+    from companion.events import ImuSample
+
+    def imu(t):
+        return ImuSample(t_s=t, accel_frd_mps2=(0.0, 0.0, -9.8), gyro_frd_radps=(0.0, 0.0, 0.0), imu_index=0)
+
+    wait = OutputWait(0.25, outlier_s=30.0, confirm_n=3)
+    wait.next_output_s = 1.1
+    assert wait.may_wait([imu(1.12)])
+    assert not wait.may_wait([imu(500.0)])  # an outlier: the navigator holds it, the loop looks at it at once
+    assert wait.may_wait([imu(1.14)])  # and it moved nothing: the stream goes on waiting
+    assert not any(wait.may_wait([imu(t)]) for t in (800.0, 800.02, 800.04))  # three confirm a jump ...
+    wait.next_output_s = 800.1  # (the navigator's ticks jumped with it)
+    assert wait.may_wait([imu(800.12)])  # ... after which the stream waits again on its new clock
+    assert len(wait._recent) <= 10
+
+
 def test_the_link_delivers_what_waited_in_order_with_the_next_wake_up_or_after_hold_max():
     async def main():
         got: list = []
