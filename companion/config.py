@@ -47,7 +47,7 @@ STREAMABLE = ("GPS_RAW_INT", "GPS2_RAW", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2",
 #: requested as well when gravity aiding is on: the autopilot's barometric altitude, the navigator's vertical aid
 GRAVITY_STREAMS_HZ = {"GLOBAL_POSITION_INT": 5.0}
 #: ... and with gravity.reference = "air_data": the airspeed (VFR_HUD) and the heading (ATTITUDE)
-AIR_DATA_STREAMS_HZ = {"VFR_HUD": 5.0, "ATTITUDE": 10.0}
+AIR_DATA_STREAMS_HZ = {"VFR_HUD": 5.0, "ATTITUDE": 10.0, "RAW_IMU": 25.0}
 
 
 @dataclass(frozen=True)
@@ -132,6 +132,9 @@ class GravityConfig:
     # in a GNSS outage the stage's own state replaces the navigator's towards the injector, nothing goes back)
     reference: str = "navigator"
     air_wind_window_s: float = 300.0  # the wind held at a GNSS loss: the mean over this long before it
+    # the reference's heading: "attitude" (ATTITUDE yaw: EKF3's, which the fixes sent can turn) or "magnetometer" (the
+    # compass in RAW_IMU levelled by ATTITUDE roll/pitch, plus its offset to ATTITUDE yaw learnt while GNSS is good)
+    air_heading: str = "attitude"
     # air data: the held wind's error, a random walk (1 sigma per sqrt(s)); its prior is seq_init_vel_sigma_mps
     seq_wind_walk_mps_rts: float = 0.1
     # air data: the speed accuracy its states state is never below this (the autopilot fuses their velocity by it, and
@@ -378,6 +381,8 @@ def _validate_gravity(g: GravityConfig) -> None:
         raise ConfigError(f"gravity.matcher must be one of {', '.join(MATCHERS)}, got {g.matcher!r}")
     if g.reference not in ("navigator", "air_data"):
         raise ConfigError(f"gravity.reference must be navigator or air_data, got {g.reference!r}")
+    if g.air_heading not in ("attitude", "magnetometer"):
+        raise ConfigError(f"gravity.air_heading must be attitude or magnetometer, got {g.air_heading!r}")
     if g.reference == "air_data" and g.matcher != "sequential":
         raise ConfigError("gravity.reference = \"air_data\" needs gravity.matcher = \"sequential\"")
     if not g.eotvos_corrected and g.matcher != "sequential":

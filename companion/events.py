@@ -147,6 +147,14 @@ class AirData(Event):
 
 
 @dataclass(frozen=True, slots=True)
+class MagField(Event):
+    """The autopilot's first compass, its calibrated field in the body frame (MAVLink RAW_IMU x/y/zmag), gauss."""
+
+    field_frd_gauss: tuple[float, float, float]
+    topic: ClassVar[str] = "/input/mag"
+
+
+@dataclass(frozen=True, slots=True)
 class SystemTime(Event):
     """Relation of the vehicle clock to UTC: at vehicle time ``t_s`` the UTC time was ``unix_time_s``."""
 
@@ -249,6 +257,7 @@ EVENT_TYPES: tuple[type[Event], ...] = (
     GnssFix,
     Attitude,
     AirData,
+    MagField,
     SystemTime,
     Reboot,
     StatusText,

@@ -41,6 +41,38 @@ def radii_m(lat_deg: float) -> tuple[float, float]:
     return WGS84_A_M * (1.0 - WGS84_E2) / w**3, WGS84_A_M / w
 
 
+def mag_heading_rad(field_frd, roll_rad: float, pitch_rad: float) -> float:
+    """Magnetic heading of a body-frame (FRD) field levelled by roll and pitch (tilt compensation)."""
+    mx, my, mz = (float(v) for v in field_frd)
+    cr, sr, cp, sp = math.cos(roll_rad), math.sin(roll_rad), math.cos(pitch_rad), math.sin(pitch_rad)
+    xh = mx * cp + my * sr * sp + mz * cr * sp
+    yh = my * cr - mz * sr
+    return math.atan2(-yh, xh)
+
+
+class HeadingOffset:
+    """The angle from a magnetic heading to the true heading (declination plus what the compass's calibration leaves),
+    learnt as the circular mean of (reference yaw - magnetic heading) over ``window_s`` while the reference is good
+    (the autopilot's yaw with GNSS) and held otherwise."""
+
+    def __init__(self, window_s: float) -> None:
+        self.window_s = float(window_s)
+        self._d: deque[tuple[float, float, float]] = deque()  # t, cos, sin
+        self._sum = np.zeros(2)
+
+    def add(self, t_s: float, yaw_rad: float, mag_heading: float) -> None:
+        c, s_ = math.cos(yaw_rad - mag_heading), math.sin(yaw_rad - mag_heading)
+        self._d.append((t_s, c, s_))
+        self._sum += (c, s_)
+        while self._d and self._d[0][0] < t_s - self.window_s:
+            _, a, b = self._d.popleft()
+            self._sum -= (a, b)
+
+    @property
+    def offset_rad(self) -> float | None:
+        return math.atan2(self._sum[1], self._sum[0]) if len(self._d) >= 10 else None
+
+
 @dataclass(frozen=True)
 class AirDataConfig:
     wind_window_s: float = 300.0  # the wind held at the loss: the mean of GNSS minus air velocity over this long

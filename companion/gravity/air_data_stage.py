@@ -30,8 +30,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from companion.events import Attitude, AirData, AutopilotAltitude, Event, FixType, GnssFix, GravityReading
-from companion.gravity.air_data import AirDataConfig, AirDataReckoner, tas_from_eas_mps
+from companion.events import Attitude, AirData, AutopilotAltitude, Event, FixType, GnssFix, GravityReading, MagField
+from companion.gravity.air_data import AirDataConfig, AirDataReckoner, HeadingOffset, mag_heading_rad, tas_from_eas_mps
 from companion.gravity.eotvos import eotvos_from_ne_mgal
 from companion.gravity.maps import LocalGravityMap
 from companion.gravity.sequential import SeqGravConfig, SeqGravEstimate, SequentialGravityFilter
@@ -56,6 +56,11 @@ class AirDataState(FusedState):
     topic: ClassVar[str] = "/gravity/air_data_state"
 
 
+#: where the reference's heading comes from: the autopilot's ATTITUDE yaw (EKF3's, which the fixes sent can move), or
+#: its compass (RAW_IMU's field levelled by ATTITUDE roll and pitch) plus the offset to ATTITUDE yaw learnt with GNSS
+HEADINGS = ("attitude", "magnetometer")
+
+
 class AirDataGravityStage(Stage):
     """Attitude, AirData, AutopilotAltitude, GnssFix, GravityReading and the navigator's FusedState in; in an outage
     AirDataState out in place of FusedState; SequentialRecord per reading (module doc)."""
@@ -65,7 +70,12 @@ class AirDataGravityStage(Stage):
     def __init__(self, lmap: LocalGravityMap, cfg: SeqGravConfig, air: AirDataConfig | None = None, *,
                  sigma_mgal: float = 1.0, reading_delay_s: float = 0.0, source: str = "gravity:air_data",
                  seed: int = 0, receiver_instance: int = 0, gnss_timeout_s: float = 0.6,
-                 speed_sigma_floor_mps: float = 0.0) -> None:
+                 speed_sigma_floor_mps: float = 0.0, heading: str = "attitude") -> None:
+        if heading not in HEADINGS:
+            raise ValueError(f"heading must be one of {', '.join(HEADINGS)}, not {heading!r}")
+        self.heading = heading
+        self._att: Attitude | None = None
+        self._mag_offset = HeadingOffset(self.dr_window(air))
         if not cfg.ins.air_data:
             raise ValueError("the air-data stage needs SeqGravConfig.ins.air_data = True")
         if lmap.frame is None:
@@ -95,12 +105,20 @@ class AirDataGravityStage(Stage):
         self.n_readings = self.n_states = 0
         self.status_counts: Counter = Counter()
 
+    @staticmethod
+    def dr_window(air: AirDataConfig | None) -> float:
+        return (air or AirDataConfig()).wind_window_s
+
     # -- stream ------------------------------------------------------------------------------------
     def process(self, item: Any) -> list[Event]:
         if isinstance(item, FusedState):
             return self._state(item)
         if isinstance(item, Attitude):
-            self.dr.heading(item.t_s, item.yaw_rad)
+            self._att = item
+            if self.heading == "attitude":
+                self.dr.heading(item.t_s, item.yaw_rad)
+        elif isinstance(item, MagField):
+            self._mag(item)
         elif isinstance(item, AirData):
             if self._alt_m is not None:
                 self.dr.airspeed(item.t_s, tas_from_eas_mps(item.airspeed_mps, self._alt_m))
@@ -117,6 +135,19 @@ class AirDataGravityStage(Stage):
 
     def passes(self, item: Any) -> bool:
         return not (self._withhold and type(item) is FusedState)
+
+    def _mag(self, m: MagField) -> None:
+        """Magnetometer heading: learns its offset to the autopilot's yaw while GNSS is good (not in an outage, where
+        that yaw may follow the fixes sent), then gives the reference its heading."""
+        a = self._att
+        if self.heading != "magnetometer" or a is None or abs(m.t_s - a.t_s) > 0.5:
+            return
+        h = mag_heading_rad(m.field_frd_gauss, a.roll_rad, a.pitch_rad)
+        if not self._receiver_out(m.t_s) and self._good_t is not None:
+            self._mag_offset.add(m.t_s, a.yaw_rad, h)
+        off = self._mag_offset.offset_rad
+        if off is not None:
+            self.dr.heading(m.t_s, h + off)
 
     def _gnss(self, fix: GnssFix) -> None:
         if fix.instance != self.receiver_instance:

@@ -35,6 +35,8 @@ psi-angle model of Titterton & Weston ch. 12 as in replay.gravity.sim.simulate_i
     dr' = dv;  dv' = f x psi + C_b^n ba - (g/R) dr  (Schuler);  psi' = -w_in x psi - C_b^n bg,
 with white velocity (VRW) and angle (ARW) noise; yaw-only body-to-nav rotation (a ship is level). The Schuler
 term bounds the accelerometer-bias error; gyro bias makes the position error grow ~R*bg*t.
+With ``InsErrorSpec.air_data`` the reference is air-data dead reckoning instead (companion.gravity.air_data: airspeed
+along the heading plus a held wind): dr' = dv, dv' = white (the held wind's error walks), no attitude or bias terms.
 
 Divergence: the windowed mean of the normalised innovation squared (mixture predictive), repeated "no particle
 explains the reading" events, a spread beyond the INS-alone spread, or an estimate implausible under the INS-alone

@@ -360,7 +360,8 @@ def live_gravity_stage(config) -> Stage:
         return AirDataGravityStage(lmap, seq_config_of(config), AirDataConfig(wind_window_s=config.air_wind_window_s),
                                    sigma_mgal=config.sigma_mgal, reading_delay_s=config.reading_delay_s,
                                    source=f"gravity:{config.named_value}:air_data",
-                                   speed_sigma_floor_mps=config.air_speed_sigma_floor_mps)
+                                   speed_sigma_floor_mps=config.air_speed_sigma_floor_mps,
+                                   heading=config.air_heading)
     if config.matcher == "sequential":
         from companion.gravity.sequential_stage import SequentialGravityStage, seq_config_of
 

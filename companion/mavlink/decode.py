@@ -19,6 +19,7 @@ from companion import units
 from companion.events import (
     AirData,
     Attitude,
+    MagField,
     AutopilotAltitude,
     AutopilotPosition,
     Event,
@@ -226,6 +227,8 @@ class MavlinkDecoder:
         acc = tuple(units.mps2_from_mG(v) for v in (msg.xacc, msg.yacc, msg.zacc))
         gyr = tuple(units.radps_from_mradps(v) for v in (msg.xgyro, msg.ygyro, msg.zgyro))
         out.append(ImuSample(t_s=t_s, accel_frd_mps2=acc, gyro_frd_radps=gyr, imu_index=index))
+        if mtype == "RAW_IMU" and (msg.xmag or msg.ymag or msg.zmag):  # ArduPilot's first compass (mGauss)
+            out.append(MagField(t_s=t_s, field_frd_gauss=(msg.xmag * 1e-3, msg.ymag * 1e-3, msg.zmag * 1e-3)))
 
     def _attitude(self, msg, recv_s: float, out: list[Event]) -> None:
         if not _finite(msg.roll, msg.pitch, msg.yaw):

@@ -11,8 +11,8 @@ import math
 import numpy as np
 import pytest
 
-from companion.events import AirData, Attitude, AutopilotAltitude, GnssFix, GravityReading
-from companion.gravity.air_data import AirDataConfig, AirDataReckoner, radii_m, tas_from_eas_mps
+from companion.events import AirData, Attitude, AutopilotAltitude, GnssFix, GravityReading, MagField
+from companion.gravity.air_data import AirDataConfig, AirDataReckoner, mag_heading_rad, radii_m, tas_from_eas_mps
 from companion.gravity.air_data_stage import AID, AirDataGravityStage, AirDataState
 from companion.gravity.data import AK_GULF, shared_gravity_dir
 from companion.gravity.maps import LocalGravityMap, load_grid
@@ -118,16 +118,39 @@ def _fused(t, lat, lon) -> FusedState:
                       1e3, 1.0, "ins", "none", (nan, nan, nan), 0, 1e3)
 
 
-def fly(seed: int, wind_walk: float = 0.1, denial_s: float = DENIAL_S):
+#: the Earth's field in the AK area (NED, gauss): inclination 73 deg, declination 18 deg
+INC, DEC = math.radians(73.0), math.radians(18.0)
+EARTH_NED = 0.55 * np.array([math.cos(INC) * math.cos(DEC), math.cos(INC) * math.sin(DEC), math.sin(INC)])
+
+
+def body_field(yaw: float, roll: float = 0.0, pitch: float = 0.0) -> tuple[float, float, float]:
+    cr, sr, cp, sp, cy, sy = (f(x) for x in (roll, pitch, yaw) for f in (math.cos, math.sin))
+    dcm = np.array([[cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy],
+                    [cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy], [-sp, sr * cp, cr * cp]])
+    return tuple(dcm.T @ EARTH_NED)
+
+
+@pytest.mark.parametrize("roll_deg,pitch_deg", [(0.0, 0.0), (20.0, 5.0), (-30.0, -8.0)])
+def test_mag_heading_is_tilt_compensated(roll_deg, pitch_deg):
+    for yaw in np.radians([0.0, 75.0, 190.0, 300.0]):
+        h = mag_heading_rad(body_field(yaw, math.radians(roll_deg), math.radians(pitch_deg)), math.radians(roll_deg),
+                            math.radians(pitch_deg))
+        assert math.remainder(h + DEC - yaw, 2 * math.pi) == pytest.approx(0.0, abs=1e-9)
+
+
+def fly(seed: int, wind_walk: float = 0.1, denial_s: float = DENIAL_S, heading: str = "attitude",
+        yaw_drift_deg: float = 0.0):
+    """``yaw_drift_deg``: the autopilot's yaw wanders by this much (a slow sine) once GNSS is lost, as EKF3's did when
+    it fused the companion's fixes on ArduPlane SITL; the compass does not."""
     lmap = LocalGravityMap.around(load_grid(GRID))
     flight = Flight(seed)
     rng = np.random.default_rng(seed + 100)
     meter = TruthGravimeter(lmap, GravimeterSpec(), np.random.default_rng(seed), ship_minus_satellite_mgal())
     cfg = SeqGravConfig(n_particles=300, noise_corr_s=1.0,
                         ins=InsErrorSpec(air_data=True, wind_walk_mps_rts=wind_walk, init_vel_sigma_mps=1.0))
-    stage = AirDataGravityStage(lmap, cfg, sigma_mgal=1.0, reading_delay_s=15.0, seed=seed)
+    stage = AirDataGravityStage(lmap, cfg, sigma_mgal=1.0, reading_delay_s=15.0, seed=seed, heading=heading)
     stage.process(FrameInfo(0.0, ORIGIN[0], ORIGIN[1], 0.0))
-    dr = AirDataReckoner()  # the held-wind dead reckoning alone, on the same inputs
+    dr = AirDataReckoner()  # the held-wind dead reckoning alone, on the same inputs (the compass's heading, offset known)
     yaw_bias = math.radians(0.5)
     t_cut = HEALTHY_S
     rows = []  # t, stage error, stated sigma_h, dead-reckoning error
@@ -140,7 +163,9 @@ def fly(seed: int, wind_walk: float = 0.1, denial_s: float = DENIAL_S):
             g = meter.read(t)
             if g is not None:
                 items.append(GravityReading(t, g, 1.0, eotvos_corrected=False))
-        items.append(Attitude(t, 0.0, 0.0, yaw + yaw_bias + float(rng.normal(0, math.radians(0.3)))))
+        drift = math.radians(yaw_drift_deg) * math.sin(2 * math.pi * (t - t_cut) / 600.0) if t >= t_cut else 0.0
+        items.append(Attitude(t, 0.0, 0.0, yaw + yaw_bias + drift + float(rng.normal(0, math.radians(0.3)))))
+        items.append(MagField(t, tuple(v + float(rng.normal(0, 0.003)) for v in body_field(yaw))))
         if k % 2 == 0:
             items.append(AutopilotAltitude(t, ALT_M))
             eas = TAS_MPS / tas_from_eas_mps(1.0, ALT_M)
@@ -153,8 +178,8 @@ def fly(seed: int, wind_walk: float = 0.1, denial_s: float = DENIAL_S):
                                  None, None, None))
         for it in items:
             stage.process(it)
-            if isinstance(it, Attitude):
-                dr.heading(it.t_s, it.yaw_rad)
+            if isinstance(it, MagField):
+                dr.heading(it.t_s, mag_heading_rad(it.field_frd_gauss, 0.0, 0.0) + DEC + yaw_bias)
             elif isinstance(it, AirData):
                 dr.airspeed(it.t_s, tas_from_eas_mps(it.airspeed_mps, ALT_M))
             elif isinstance(it, GnssFix) and it.fix_type >= 3:
@@ -186,3 +211,15 @@ def test_air_data_gravity_bounds_the_denial_and_states_it_honestly(seed):
     assert err[late].mean() < 0.6 * dr_err[late].mean()  # measured 0.16x (seed 1), 0.52x (seed 2)
     assert err.mean() < 2500.0  # measured 730 m, 1830 m
     assert np.mean(err <= 2.0 * sig) >= 0.9  # honest
+
+
+@pytest.mark.slow
+def test_the_compass_heading_keeps_the_filter_when_the_autopilot_yaw_wanders():
+    """EKF3's yaw turned with the fixes it fused (ArduPlane SITL, docs/decisions/0012): the reference built on it
+    is lost, the one on the compass (its offset learnt while GNSS was good) is not."""
+    att = fly(1, denial_s=1800.0, yaw_drift_deg=15.0)
+    mag = fly(1, denial_s=1800.0, heading="magnetometer", yaw_drift_deg=15.0)
+    print(f"attitude yaw: mean {att[:, 1].mean():.0f} m, within 2 sigma {np.mean(att[:, 1] <= 2 * att[:, 2]):.2f}; "
+          f"compass: mean {mag[:, 1].mean():.0f} m, within {np.mean(mag[:, 1] <= 2 * mag[:, 2]):.2f}")
+    assert mag[:, 1].mean() < 0.5 * att[:, 1].mean()
+    assert np.mean(mag[:, 1] <= 2.0 * mag[:, 2]) >= 0.9

@@ -9,7 +9,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion import units
-from companion.events import GnssFix, ImuSample
+from companion.events import GnssFix, ImuSample, MagField
 from companion.mavlink.decode import MavlinkDecoder
 
 
@@ -67,8 +67,14 @@ def test_imu_roundtrip_mG_mradps(mtype):
     else:
         cls = getattr(mavlink, f"MAVLink_{mtype.lower()}_message")
         m = cls(5000, *acc, *gyr, 1, 2, 3)
-    (imu,) = _decoder().decode(_wire(m), 1.0)
+    imu, *rest = _decoder().decode(_wire(m), 1.0)
     assert isinstance(imu, ImuSample)
+    if mtype == "RAW_IMU":  # its compass field (mGauss) as a MagField at the same time
+        (mag,) = rest
+        assert isinstance(mag, MagField) and mag.t_s == imu.t_s
+        assert [round(v * 1e3) for v in mag.field_frd_gauss] == [1, 2, 3]
+    else:
+        assert rest == []
     assert imu.t_s == pytest.approx(5.0)
     assert imu.imu_index == {"RAW_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}[mtype]
     assert [units.mG_from_mps2(a) for a in imu.accel_frd_mps2] == acc
@@ -115,7 +121,7 @@ def test_imu_field_at_int16_limit_is_dropped_not_read(field, limit):
     assert dec.decode(_wire(m), 1.0) == []
     assert dec.dropped["RAW_IMU clamped (a field at its int16 limit)"] == 1
     vals[field] = limit - 1 if limit > 0 else limit + 1  # one count inside is a reading
-    (imu,) = dec.decode(_wire(mavlink.MAVLink_raw_imu_message(5_020_000, *vals.values(), 1, 2, 3)), 1.02)
+    imu = dec.decode(_wire(mavlink.MAVLink_raw_imu_message(5_020_000, *vals.values(), 1, 2, 3)), 1.02)[0]
     assert isinstance(imu, ImuSample)
 
 
