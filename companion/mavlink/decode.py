@@ -61,6 +61,9 @@ _EPOCH_US = 1e15
 
 #: the altitudes (m above mean sea level) a GNSS fix of a vehicle can have; beyond them the message is corrupt
 MIN_ALT_M, MAX_ALT_M = -1000.0, 100_000.0
+#: RAW_IMU's compass field goes out at most this often (s): a heading at 5 Hz; at the IMU's rate it would split the
+#: runs of IMU samples the live loop coalesces when behind
+MAG_PERIOD_S = 0.2
 #: an IMU field at an int16 limit is a clamped value, not a reading (ArduPilot's IMUs span 16-32 g and 2000 deg/s:
 #: 16000-32000 mG, 34907 mrad/s; the packer clamps what overflows), so the sample is unknown, not 32.8 g
 INT16_MIN, INT16_MAX = -32768, 32767
@@ -79,6 +82,7 @@ class MavlinkDecoder:
         self.target_component = target_component
         #: a companion.mavlink.gravimeter.NamedValueGravityDecoder (None: gravimeter readings are not decoded)
         self.gravity = gravity
+        self._mag_t_s = -math.inf  # the last MagField sent (RAW_IMU compass, MAG_PERIOD_S apart)
         #: message type -> handler; and the message types taken from any component of the autopilot's system
         #: rather than from the autopilot component alone (source policy)
         self.handlers = dict(_HANDLERS)
@@ -227,7 +231,8 @@ class MavlinkDecoder:
         acc = tuple(units.mps2_from_mG(v) for v in (msg.xacc, msg.yacc, msg.zacc))
         gyr = tuple(units.radps_from_mradps(v) for v in (msg.xgyro, msg.ygyro, msg.zgyro))
         out.append(ImuSample(t_s=t_s, accel_frd_mps2=acc, gyro_frd_radps=gyr, imu_index=index))
-        if mtype == "RAW_IMU" and (msg.xmag or msg.ymag or msg.zmag):  # ArduPilot's first compass (mGauss)
+        if mtype == "RAW_IMU" and (msg.xmag or msg.ymag or msg.zmag) and not t_s - self._mag_t_s < MAG_PERIOD_S:
+            self._mag_t_s = t_s  # ArduPilot's first compass (mGauss), at most every MAG_PERIOD_S (heading enough)
             out.append(MagField(t_s=t_s, field_frd_gauss=(msg.xmag * 1e-3, msg.ymag * 1e-3, msg.zmag * 1e-3)))
 
     def _attitude(self, msg, recv_s: float, out: list[Event]) -> None:
