@@ -208,8 +208,8 @@ def test_air_data_gravity_bounds_the_denial_and_states_it_honestly(seed):
           f", end {err[-1]:.0f} m; held wind: mean {dr_err.mean():.0f}, end {dr_err[-1]:.0f} m; within 2 sigma_h "
           f"{np.mean(err <= 2 * sig):.2f}; aided {aided.mean():.2f}; sigma_h median {np.median(sig):.0f} m")
     assert dr_err[late].mean() > 3000.0  # the wind's turns make the held wind's dead reckoning drift km
-    assert err[late].mean() < 0.6 * dr_err[late].mean()  # measured 0.16x (seed 1), 0.52x (seed 2)
-    assert err.mean() < 2500.0  # measured 730 m, 1830 m
+    assert err[late].mean() < 0.6 * dr_err[late].mean()
+    assert err.mean() < 2500.0  # measured 933 m (seed 1), 1268 m (seed 2): docs/decisions/0012
     assert np.mean(err <= 2.0 * sig) >= 0.9  # honest
 
 
