@@ -10,6 +10,7 @@ import math
 import pytest
 
 from companion.events import Event, StatusText
+from companion.gravity.air_data_stage import AirDataGravityStage
 from companion.gravity.sequential import SeqGravConfig
 from companion.gravity.sequential_stage import SequentialGravityStage
 from companion.gravity.stage import FixAcceptance, GravityMatchStage, gravity_replay_pipeline
@@ -48,9 +49,16 @@ def _run(events, matcher="viterbi"):
     return pipe, sink.items
 
 
+#: stages that cannot run in the gravity replay pipeline: the air-data reference needs a fixed wing's VFR_HUD air data,
+#: which no shared log has (its own tests: tests/gravity/test_air_data_gravity.py, the ArduPlane SITL test)
+OUTSIDE_REPLAY = {AirDataGravityStage}
+
+
 def test_every_stage_of_the_package_is_under_contract_and_in_the_replay_pipeline(events):
+    import companion.gravity.air_data_stage  # noqa: F401 - every stage module imported, whatever ran before
+
     product = {c for c in subclasses(Stage) if c.__module__.startswith("companion.") and not inspect.isabstract(c)}
-    assert product == STAGES
+    assert product == STAGES | OUTSIDE_REPLAY
     in_pipelines = set()
     for matcher in ("viterbi", "sequential"):
         pipe, _ = _run(events[:2000], matcher)
