@@ -1,30 +1,10 @@
 """The GPS_INPUT injector stage: FusedState -> MAVLink GPS_INPUT (common.xml, id 232), with integrity checks.
 
-Field by field (what ArduPilot's AP_GPS_MAV driver and EKF3 do with it, observed on ArduCopter 4.x SITL):
-
-* ``lat``/``lon``: degE7 WGS84 from the fused state. ``alt``: metres above mean sea level; the navigator
-  carries ``alt_msl_m`` (the receiver's MSL altitude as ArduPilot reports it, see :mod:`companion.events`)
-  so it is sent unchanged -- no geoid model is applied here.
-* ``vn``/``ve``/``vd``: NED velocity (m/s). Always filled: ArduPilot takes an ignored velocity as zero. ``vd`` is
-  flagged ignored while its sigma exceeds the ``speed_accuracy`` sent (EKF3 weighs all three components by that one
-  accuracy: a vertical velocity worse than it would be fused overconfident).
-* ``horiz_accuracy``/``vert_accuracy``/``speed_accuracy``: from the filter covariance (``sigma_h_m`` =
-  sqrt(P_nn + P_ee), ``sigma_v_m`` = sqrt(P_dd), speed: sqrt(max(P_vn, P_ve))), so they grow while the
-  navigator coasts. A Kalman filter fed with a receiver's time-correlated errors (multipath, ionosphere:
-  minutes of correlation) believes it averages them down; it cannot. So the position accuracies are never
-  reported better than the real receiver's own last reported accuracy (``floor_to_receiver``). ``hdop``/``vdop``: the same sigmas divided by an assumed user range error
-  (``uere_m``); the HDOP must not be flagged as ignored or EKF3 never passes its GPS checks.
-* ``fix_type``: 3 (3D) only while sigma_h <= ``max_h_acc_3d_m`` and sigma_v <= ``max_v_acc_3d_m`` (or the
-  vertical is flagged ignored: beyond ``max_v_acc_alt_m`` the message claims nothing about it);
-  2 (2D) while sigma_h <= ``max_h_acc_2d_m``; 1 (no fix) beyond. ``satellites_visible``: the configured
-  ``satellites`` (>= 6, which ArduPilot requires) with a 2D/3D fix, 0 without.
-* ``time_week``/``time_week_ms``: GPS time of the solution from the receiver's own GPS time when the
-  source gives it (``GnssFix.gps_week``/``gps_tow_s``), else from the autopilot's SYSTEM_TIME (UTC + leap
-  seconds); while neither is known the message goes out as no fix with 0/0 (a fix is never sent without its
-  time). ``time_usec``: the autopilot's boot time of the solution (microseconds since boot); a state from before
-  the autopilot's last reboot, or one the link saw a reboot after, is never sent.
-* ``yaw``: 0 (not available) unless ``send_yaw`` and the state has a heading (then cdeg, 36000 = north).
-* ``gps_id``: the GPS instance fed (0 for GPS1_TYPE = 14, 1 for GPS2_TYPE = 14).
+Field by field (what ArduPilot's AP_GPS_MAV driver and EKF3 do with each field, and how the injector fills it:
+accuracies from the covariance never better than the real receiver's, the fix type from ``max_h_acc_3d_m`` /
+``max_v_acc_3d_m`` / ``max_h_acc_2d_m``, the vertical flagged ignored beyond ``max_v_acc_alt_m`` and ``vd`` while worse
+than the speed accuracy, GPS time and boot time of the solution): the table in docs/ardupilot.md, "GPS_INPUT, field
+by field".
 
 Integrity: a state with a non-finite or out-of-range field, lat = lon = 0, an implausible speed, a
 non-positive or non-finite sigma, a field that does not fit its wire type, or a time not after the previous
