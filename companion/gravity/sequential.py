@@ -20,29 +20,22 @@ Two back-ends on the same front-end (time handling, map tiles, divergence and si
     with J the Eotvos sensitivity (mGal per m/s, Gao eq. 5 differentiated): the correction used the reference
     velocity, so a velocity error leaves -J dv in the reading. Measurement update: Schoen eqs. 22, 25a (weights from
     the predictive variance V = H Pl H' + R); time update: eqs. 23-24, 25b.
-``pmf`` -- point-mass filter on a moving 2-D grid over the position error, with the same map-misfit state as a
-    scalar Kalman filter per grid point; the INS error enters only as a random walk whose variance follows the growth
-    of the INS-alone position covariance (the grid has no velocity states). Kept to compare against (see
-    replay/results/gravity_marine.md).
+``pmf`` -- point-mass filter on a moving 2-D grid over the position error with a per-point misfit state; the INS
+    error enters only as a random walk (no velocity states). Kept to compare against (replay/results/gravity_marine.md).
 
-Learnt misfit sigma (``MapErrorSpec.learn_window_m``): the variance of reading minus the cloud's weighted-mean map
-value over a long distance window, less the reading noise, floored at ``sigma_mgal``, sets the misfit's process
-noise: a cloud far off the truth keeps consistent per-particle innovations (the misfit state absorbs the mismatch)
-while this variance grows (docs/decisions/0008-gravity-map-misfit.md).
+Learnt misfit sigma (``MapErrorSpec.learn_window_m``): the spread of reading minus the cloud's mean map value over a
+long window sets the misfit's process noise (docs/decisions/0008-gravity-map-misfit.md).
 
 INS error model (both back-ends, and the INS-alone covariance the filter carries for re-initialisation): the
 psi-angle model of Titterton & Weston ch. 12 as in replay.gravity.sim.simulate_ins --
     dr' = dv;  dv' = f x psi + C_b^n ba - (g/R) dr  (Schuler);  psi' = -w_in x psi - C_b^n bg,
-with white velocity (VRW) and angle (ARW) noise; yaw-only body-to-nav rotation (a ship is level). The Schuler
-term bounds the accelerometer-bias error; gyro bias makes the position error grow ~R*bg*t.
+with white velocity (VRW) and angle (ARW) noise; yaw-only body-to-nav rotation (a ship is level).
 With ``InsErrorSpec.air_data`` the reference is air-data dead reckoning instead (companion.gravity.air_data: airspeed
 along the heading plus a held wind): dr' = dv, dv' = white (the held wind's error walks), no attitude or bias terms.
 
-Divergence: the windowed mean of the normalised innovation squared (mixture predictive), repeated "no particle
-explains the reading" events, a spread beyond the INS-alone spread, or an estimate implausible under the INS-alone
-covariance trigger a re-initialisation around the reference with the INS-alone (or the navigator's) covariance.
-No signal: the map's variation along the estimated track over the last ``signal_window_m`` is compared with the
-reading noise; below ``min_signal_ratio`` the output says ``no_signal`` (its covariance keeps growing with the INS).
+Divergence (innovations inconsistent, no particle explaining the reading, a spread or estimate implausible under the
+INS-alone covariance) re-initialises around the reference; too little map variation along the track over
+``signal_window_m`` against the reading noise gives ``no_signal`` (docs/gravity.md).
 
 Pure numpy, no wall clock (CPU time per reading is measured with time.process_time for reporting only).
 """

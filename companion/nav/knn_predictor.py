@@ -13,16 +13,11 @@ Where the paper is vague, the choices (all in :class:`KnnConfig`):
 
 * **Frame of X/Y/Z**: local NED metres (the caller converts geodetic fixes with
   :class:`companion.nav.frame.LocalFrame`); Z is down.
-* **Training database**: built online from this flight's own GNSS history. Real fixes are interpolated
-  onto a 0.1 s grid: cubic Hermite when both fixes carry the receiver's NED velocity, else linear. This is
-  how the paper's 1 Hz receiver history is matched to 0.1 s steps; with linear interpolation a turn's
-  1 Hz history becomes chords and the in-between points extrapolate the last chord (0.7 m off after 0.9 s
-  at 5 m/s on a 30 m circle), with the receiver velocity the grid follows the arc. Every run of ``window + 1`` consecutive grid points
-  of one contiguous segment (no fix gap longer than ``max_gap_s``) becomes one entry: the first ``window``
-  points are the key, the last is the continuation. Only real fixes enter the database, never
-  predictions. The database is a ring buffer of ``max_entries`` (bounded memory) indexed by a
-  :class:`scipy.spatial.cKDTree` that is rebuilt every ``rebuild_every`` new entries; entries newer than
-  the tree are searched by brute force, so results equal an exact search over the whole buffer.
+* **Training database**: built online from this flight's own real GNSS fixes (never predictions), interpolated onto
+  a 0.1 s grid (cubic Hermite with the receiver's NED velocity, so a turn's 1 Hz history follows the arc rather than
+  its chords; else linear). Each run of ``window + 1`` grid points of one contiguous segment (no gap over
+  ``max_gap_s``) is one entry: key, then continuation. A ring buffer of ``max_entries`` (bounded memory) indexed
+  by a cKDTree rebuilt every ``rebuild_every`` entries, newer entries searched by brute force (an exact search).
 * **Translation invariance** (``pattern="relative"``, the default): keys are the window's points minus its
   newest point and the continuation is the next displacement, so a manoeuvre learnt at one place predicts
   the same manoeuvre elsewhere. ``pattern="absolute"`` matches raw coordinates, as eq. (1) reads
@@ -35,13 +30,9 @@ Where the paper is vague, the choices (all in :class:`KnnConfig`):
 * **Cold start**: until the database has ``k`` entries the predictor extrapolates the window at
   constant velocity (``method="cv"``).
 * **Uncertainty**: 1-sigma grows with the age tau since the last real fix:
-  ``sigma^2 = sigma_fix^2 + (sigma_vel * tau)^2 + (0.5 * sigma_acc * tau^2)^2 + spread``, where sigma_fix is
-  the receiver's own accuracy at the anchor fix, sigma_vel the velocity uncertainty of a 0.1 s-grid
-  window, sigma_acc a manoeuvring-acceleration level typical of a small multicopter, and ``spread`` the
-  square of the summed weighted standard deviations of the neighbours' continuations along the recursion
-  (summed, not added in quadrature: a wrong step is repeated by the following steps, so the error grows
-  linearly). With smooth receiver data the neighbours agree and this term stays small; with noisy fixes
-  it dominates and tells the filter to distrust the predictor.
+  ``sigma^2 = sigma_fix^2 + (sigma_vel * tau)^2 + (0.5 * sigma_acc * tau^2)^2 + spread``, ``spread`` the square of
+  the neighbours' weighted continuation spreads summed along the recursion (a wrong step repeats, so it adds
+  linearly): noisy fixes make it dominate and tell the filter to distrust the predictor.
 
 Pure: no I/O, no clocks. Positions in, positions out.
 """
