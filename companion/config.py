@@ -42,7 +42,8 @@ DEFAULT_STREAMS_HZ: dict[str, float] = {
     "GLOBAL_POSITION_INT": 5.0,
 }
 #: Messages SET_MESSAGE_INTERVAL may be asked for (what the decoder understands).
-STREAMABLE = ("GPS_RAW_INT", "GPS2_RAW", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "ATTITUDE", "SYSTEM_TIME",
+STREAMABLE = ("GPS_RAW_INT", "GPS2_RAW", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU", "ATTITUDE",
+              "SYSTEM_TIME",
               "GLOBAL_POSITION_INT", "VFR_HUD")
 #: requested as well when gravity aiding is on: the autopilot's barometric altitude, the navigator's vertical aid
 GRAVITY_STREAMS_HZ = {"GLOBAL_POSITION_INT": 5.0}
@@ -132,9 +133,19 @@ class GravityConfig:
     # in a GNSS outage the stage's own state replaces the navigator's towards the injector, nothing goes back)
     reference: str = "navigator"
     air_wind_window_s: float = 300.0  # the wind held at a GNSS loss: the mean over this long before it
-    # the reference's heading: "attitude" (ATTITUDE yaw: EKF3's, which the fixes sent can turn) or "magnetometer" (the
-    # compass in RAW_IMU levelled by ATTITUDE roll/pitch, plus its offset to ATTITUDE yaw learnt while GNSS is good)
+    # the reference's heading: "attitude" (ATTITUDE yaw: EKF3's, which the fixes sent can turn), "magnetometer" (the
+    # compass in RAW_IMU levelled by ATTITUDE roll/pitch, plus its offset to ATTITUDE yaw learnt while GNSS is good) or
+    # "gyro" (RAW_IMU's gyro integrated, levelled by ATTITUDE roll/pitch, its bias learnt while GNSS is good)
     air_heading: str = "attitude"
+    # air_heading = "gyro" (companion.gravity.gyro_heading): the z-gyro bias and alignment are fitted over this much of
+    # the latest GNSS period; the bias's in-run drift (deg/h per sqrt(h)) and the integration's angle random walk
+    # (deg/sqrt(h)) the heading's stated error grows by in an outage
+    air_gyro_window_s: float = 1200.0
+    # the gyro's message: "RAW_IMU" (int16 mrad/s, truncated towards zero by ArduPilot) or "HIGHRES_IMU" (floats;
+    # requested at RAW_IMU's air-data rate)
+    air_gyro_source: str = "RAW_IMU"
+    air_gyro_bias_walk_degph_rth: float = 5.0
+    air_gyro_arw_deg_rth: float = 0.5
     # air data: the held wind's error, a random walk (1 sigma per sqrt(s)); its prior is seq_init_vel_sigma_mps
     seq_wind_walk_mps_rts: float = 0.1
     # air data: the speed accuracy its states state is never below this (the autopilot fuses their velocity by it, and
@@ -210,6 +221,8 @@ _RANGES: dict[str, tuple[float, float]] = {
     "gravity.seq_gyro_arw_deg_rthr": (0.0, 100.0), "gravity.seq_accel_vrw_ug_rthz": (0.0, 1e6),
     "gravity.seq_init_vel_sigma_mps": (1e-4, 100.0), "gravity.seq_noise_corr_s": (0.0, 3600.0),
     "gravity.seq_min_gain": (0.0, 0.99), "gravity.seq_wind_walk_mps_rts": (0.0, 10.0),
+    "gravity.air_gyro_window_s": (120.0, 7200.0), "gravity.air_gyro_bias_walk_degph_rth": (0.0, 1000.0),
+    "gravity.air_gyro_arw_deg_rth": (0.0, 100.0),
     "gravity.reading_delay_s": (0.0, 600.0),
     "navigator.imu_index": (0, 3), "navigator.gnss_instance": (0, 1), "navigator.gnss_delay_s": (0.0, 1.0),
     "navigator.gnss_vel_delay_s": (0.0, 1.0),
@@ -364,6 +377,8 @@ def _validate(cfg: Config) -> Config:
         raise ConfigError(f"record.max_total_mb must be 0 (no budget) or >= {MIN_BUDGET_MB:g} MB, got {cfg.record.max_total_mb:g}")
     _validate_gravity(cfg.gravity)
     wanted = {**GRAVITY_STREAMS_HZ, **(AIR_DATA_STREAMS_HZ if cfg.gravity.reference == "air_data" else {})}
+    if cfg.gravity.reference == "air_data" and cfg.gravity.air_heading == "gyro" and cfg.gravity.air_gyro_source != "RAW_IMU":
+        wanted[cfg.gravity.air_gyro_source] = AIR_DATA_STREAMS_HZ["RAW_IMU"]
     if cfg.gravity.map and any(n not in cfg.streams.rates_hz for n in wanted):
         cfg = dataclasses.replace(cfg, streams=dataclasses.replace(
             cfg.streams, rates_hz={**wanted, **cfg.streams.rates_hz}))
@@ -381,8 +396,12 @@ def _validate_gravity(g: GravityConfig) -> None:
         raise ConfigError(f"gravity.matcher must be one of {', '.join(MATCHERS)}, got {g.matcher!r}")
     if g.reference not in ("navigator", "air_data"):
         raise ConfigError(f"gravity.reference must be navigator or air_data, got {g.reference!r}")
-    if g.air_heading not in ("attitude", "magnetometer"):
-        raise ConfigError(f"gravity.air_heading must be attitude or magnetometer, got {g.air_heading!r}")
+    if g.air_heading not in ("attitude", "magnetometer", "gyro"):
+        raise ConfigError(f"gravity.air_heading must be attitude, magnetometer or gyro, got {g.air_heading!r}")
+    from companion.gravity.gyro_heading import GYRO_SOURCES
+
+    if g.air_gyro_source not in GYRO_SOURCES:
+        raise ConfigError(f"gravity.air_gyro_source must be one of {', '.join(GYRO_SOURCES)}, got {g.air_gyro_source!r}")
     if g.reference == "air_data" and g.matcher != "sequential":
         raise ConfigError("gravity.reference = \"air_data\" needs gravity.matcher = \"sequential\"")
     if not g.eotvos_corrected and g.matcher != "sequential":

@@ -74,7 +74,8 @@ class ImuSample(Event):
     """One IMU sample. ``accel_frd_mps2`` is specific force (at rest, level: about (0, 0, -9.8)).
 
     ``imu_index`` is 0 for the first IMU (dataflash IMU / MAVLink RAW_IMU or SCALED_IMU),
-    1 for IMU2 / SCALED_IMU2, 2 for IMU3 / SCALED_IMU3.
+    1 for IMU2 / SCALED_IMU2, 2 for IMU3 / SCALED_IMU3, 3 for MAVLink HIGHRES_IMU (the autopilot's primary IMU in
+    floats).
     """
 
     accel_frd_mps2: Vec3

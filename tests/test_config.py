@@ -155,3 +155,16 @@ def test_the_sequential_gravity_filter_corrects_the_navigator_position_only(tmp_
     assert load_config(None, seq).nav_config().position_fix_position_only
     told = load_config(None, {**seq, "navigator.position_fix_position_only": False})
     assert not told.nav_config().position_fix_position_only
+
+
+def test_the_gyro_heading_asks_for_its_gyro_message(tmp_path):
+    """gravity.air_heading = "gyro" on HIGHRES_IMU requests that message at RAW_IMU's air-data rate; an unknown gyro
+    source is refused."""
+    (tmp_path / "map.nc").write_bytes(b"")
+    base = {"link.connect": "tcp:127.0.0.1:5760", "gravity.map": str(tmp_path / "map.nc"),
+            "gravity.matcher": "sequential", "gravity.reference": "air_data", "gravity.air_heading": "gyro"}
+    assert "HIGHRES_IMU" not in load_config(None, base).streams.rates_hz  # RAW_IMU by default
+    cfg = load_config(None, {**base, "gravity.air_gyro_source": "HIGHRES_IMU"})
+    assert cfg.streams.rates_hz["HIGHRES_IMU"] == 25.0
+    with pytest.raises(ConfigError, match="air_gyro_source"):
+        load_config(None, {**base, "gravity.air_gyro_source": "SCALED_IMU9"})

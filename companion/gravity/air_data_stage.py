@@ -13,9 +13,10 @@ horizontal velocity corrected by the filter, covariance from the filter, altitud
 ``gravity_airdata`` while the filter's covariance stands (AIDED: an aid the autopilot lacks: companion.inject.gps_input's
 ``outage_aids``), else ``airdata``. Nothing goes back to the navigator.
 
-Feedback: the reference takes the autopilot's airspeed (pitot) and ATTITUDE yaw. Airspeed does not depend on the
-EKF; the yaw is EKF3's, which fuses the fixes sent (a position fix moves the yaw only through the EKF's covariance):
-measured in replay.live.sitl_gravity (ATTITUDE yaw against SIMSTATE in both arms).
+Feedback: the reference takes the autopilot's airspeed (pitot) and a heading. Airspeed does not depend on the EKF;
+ATTITUDE yaw is EKF3's, which fuses the fixes sent (through its covariance: measured in replay.live.sitl_gravity,
+ATTITUDE yaw against SIMSTATE). ``heading = "gyro"`` takes the first IMU's gyro instead, its bias learnt against that
+yaw only while GNSS is good and frozen in an outage: EKF3's roll and pitch level it, nothing of its yaw reaches it.
 
 A reading describes the vehicle ``reading_delay_s`` before its stamp (a gravimeter's output filter: half its
 averaging window): the filter gets the reference at that earlier time. Pure: vehicle time only.
@@ -30,8 +31,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from companion.events import Attitude, AirData, AutopilotAltitude, Event, FixType, GnssFix, GravityReading, MagField
+from companion.events import (Attitude, AirData, AutopilotAltitude, Event, FixType, GnssFix, GravityReading, ImuSample,
+                               MagField)
 from companion.gravity.air_data import AirDataConfig, AirDataReckoner, HeadingOffset, mag_heading_rad, tas_from_eas_mps
+from companion.gravity.gyro_heading import DEGPH, GyroHeading, GyroHeadingConfig
 from companion.gravity.eotvos import eotvos_from_ne_mgal
 from companion.gravity.maps import LocalGravityMap
 from companion.gravity.sequential import SeqGravConfig, SeqGravEstimate, SequentialGravityFilter
@@ -56,9 +59,11 @@ class AirDataState(FusedState):
     topic: ClassVar[str] = "/gravity/air_data_state"
 
 
-#: where the reference's heading comes from: the autopilot's ATTITUDE yaw (EKF3's, which the fixes sent can move), or
-#: its compass (RAW_IMU's field levelled by ATTITUDE roll and pitch) plus the offset to ATTITUDE yaw learnt with GNSS
-HEADINGS = ("attitude", "magnetometer")
+#: where the reference's heading comes from: the autopilot's ATTITUDE yaw (EKF3's, which the fixes sent can move), its
+#: compass (RAW_IMU's field levelled by ATTITUDE roll and pitch) plus the offset to ATTITUDE yaw learnt with GNSS, or its
+#: first gyro integrated (companion.gravity.gyro_heading: bias and alignment learnt with GNSS, frozen in an outage; its
+#: error and residual bias are states of the gravity filter)
+HEADINGS = ("attitude", "magnetometer", "gyro")
 
 
 class AirDataGravityStage(Stage):
@@ -70,10 +75,16 @@ class AirDataGravityStage(Stage):
     def __init__(self, lmap: LocalGravityMap, cfg: SeqGravConfig, air: AirDataConfig | None = None, *,
                  sigma_mgal: float = 1.0, reading_delay_s: float = 0.0, source: str = "gravity:air_data",
                  seed: int = 0, receiver_instance: int = 0, gnss_timeout_s: float = 0.6,
-                 speed_sigma_floor_mps: float = 0.0, heading: str = "attitude") -> None:
+                 speed_sigma_floor_mps: float = 0.0, heading: str = "attitude",
+                 gyro: GyroHeadingConfig | None = None, gyro_imu_index: int = 0) -> None:
         if heading not in HEADINGS:
             raise ValueError(f"heading must be one of {', '.join(HEADINGS)}, not {heading!r}")
+        if (heading == "gyro") != cfg.ins.air_heading:
+            raise ValueError("heading = \"gyro\" goes with SeqGravConfig.ins.air_heading = True (and only it)")
         self.heading = heading
+        self.gyro = GyroHeading(gyro) if heading == "gyro" else None
+        self.gyro_imu_index = int(gyro_imu_index)
+        self._gyro_at_loss = ""
         self._att: Attitude | None = None
         self._mag_offset = HeadingOffset(self.dr_window(air))
         if not cfg.ins.air_data:
@@ -113,9 +124,21 @@ class AirDataGravityStage(Stage):
     def process(self, item: Any) -> list[Event]:
         if isinstance(item, FusedState):
             return self._state(item)
-        if isinstance(item, Attitude):
+        if isinstance(item, ImuSample):
+            if self.gyro is not None and item.imu_index == self.gyro_imu_index:
+                self.gyro.gyro(item.t_s, item.gyro_frd_radps)
+                h = self.gyro.heading_rad(item.t_s)
+                if h is not None:
+                    self.dr.heading(item.t_s, h)
+        elif isinstance(item, Attitude):
             self._att = item
-            if self.heading == "attitude":
+            if self.gyro is not None:  # learns while GNSS is good; ATTITUDE yaw only until the fit stands
+                g = self.gyro
+                g.attitude(item.t_s, item.roll_rad, item.pitch_rad, item.yaw_rad,
+                           learn=self._good_t is not None and not self._receiver_out(item.t_s))
+                if g.frozen_t is None and g.line() is None:
+                    self.dr.heading(item.t_s, item.yaw_rad)
+            elif self.heading == "attitude":
                 self.dr.heading(item.t_s, item.yaw_rad)
         elif isinstance(item, MagField):
             self._mag(item)
@@ -156,6 +179,8 @@ class AirDataGravityStage(Stage):
             v = (fix.vel_n_mps, fix.vel_e_mps) if fix.vel_n_mps is not None and fix.vel_e_mps is not None else None
             self.dr.gnss(fix.t_s, fix.lat_deg, fix.lon_deg, v)
             self._good_t = fix.t_s
+            if self.gyro is not None:
+                self.gyro.thaw()
             if self._outage_t is not None:
                 self.filter.cfg = self.cfg
             self._outage_t = None
@@ -171,19 +196,32 @@ class AirDataGravityStage(Stage):
         if self._receiver_out(t_s):
             if self._outage_t is None:
                 self._outage_t = self._good_t
-                self._hold()
+                self._hold(t_s)
             self.dr.advance(t_s)
         out: list[Event] = []
         while self._pending and self.dr.t is not None and self._pending[0].t_s - self.delay_s <= self.dr.t:
             out += self._reading(self._pending.popleft())
         return out
 
-    def _hold(self) -> None:
+    def _hold(self, t_s: float) -> None:
         """At the loss: the gusts' effect measured over the GNSS period sets the reading noise they add (through
-        the Eotvos term) and the position random walk they drive (never below the configured one)."""
+        the Eotvos term) and the position random walk they drive (never below the configured one); a gyro heading is
+        frozen and its fit's uncertainty becomes the filter's prior on the heading error and the residual bias."""
         self._gust = self.dr.gust_stats(2.0 * self.delay_s)
         self._gust_inst = self.dr.gust_stats(0.0)[0]
-        self.filter.cfg = replace(self.cfg, pos_noise_m_rts=max(self.cfg.pos_noise_m_rts, self._gust[1]))
+        cfg = replace(self.cfg, pos_noise_m_rts=max(self.cfg.pos_noise_m_rts, self._gust[1]))
+        if self.gyro is not None:
+            self.gyro.freeze(self._outage_t if self._outage_t is not None else t_s)
+            sg = self.gyro.sigmas()
+            if sg is not None:
+                sa, sb, arw, walk = sg
+                cfg = replace(cfg, ins=replace(cfg.ins, init_heading_sigma_rad=sa, gyro_bias_degph=sb / DEGPH,
+                                               gyro_arw_deg_rthr=math.degrees(arw) * 60.0,
+                                               gyro_bias_walk_degph_rth=walk * 60.0 / DEGPH))
+                b = self.gyro.bias_radps or 0.0
+                self._gyro_at_loss = (f"bias {b / DEGPH:.1f} deg/h, sigma {sb / DEGPH:.2f} deg/h, alignment sigma "
+                                      f"{math.degrees(sa):.2f} deg")
+        self.filter.cfg = cfg
 
     def _reading(self, r: GravityReading) -> list[Event]:
         t_ref = r.t_s - self.delay_s
@@ -207,8 +245,13 @@ class AirDataGravityStage(Stage):
                 n = max(1.0, 2.0 * self.delay_s / max(period, 1e-3))
                 sigma = math.sqrt(sigma**2 + n * (j * self._gust[0]) ** 2)
         self._last_reading_t = float(r.t_s)
+        air = None
+        w = self.dr.wind_held
+        if self.gyro is not None and w is not None and not anchored:  # the air velocity a heading error turns
+            air = self._map_state(lat, lon, vn - float(w[0]), ve - float(w[1]))[1]
         e = self.filter.feed(t_ref, g, ne, vel, sigma, ref_cov_ne_m2=np.eye(2) * GNSS_VAR_M2 if anchored else None,
-                             lat_deg=lat, eotvos_from_reference=not r.eotvos_corrected, anchor=anchored)
+                             lat_deg=lat, eotvos_from_reference=not r.eotvos_corrected, anchor=anchored,
+                             air_vel_ne_mps=air)
         if e is None:
             return []
         self.n_readings += 1
@@ -267,7 +310,11 @@ class AirDataGravityStage(Stage):
                 "status": ", ".join(f"{k}={v}" for k, v in sorted(self.status_counts.items())),
                 "reading_delay_s": f"{self.delay_s:g}", "wind_ne_mps": "none" if w is None else f"{w[0]:.2f},{w[1]:.2f}",
                 "air_stale_steps": str(self.dr.stale_steps),
-                "gust_at_loss": f"{self._gust[0]:.2f} m/s per reading window, {self._gust[1]:.2f} m/sqrt(s)"}
+                "gust_at_loss": f"{self._gust[0]:.2f} m/s per reading window, {self._gust[1]:.2f} m/sqrt(s)",
+                **({} if self.gyro is None else {
+                    "gyro_heading_at_loss": self._gyro_at_loss or "none",
+                    "gyro_gaps": f"{self.gyro.gaps} gaps > {self.gyro.cfg.max_gap_s:g} s, {self.gyro.unlevelled} "
+                                 "samples without a recent roll/pitch"})}
 
     def summary_lines(self) -> list[str]:
         st = ", ".join(f"{k} {v}" for k, v in sorted(self.status_counts.items())) or "none"

@@ -30,8 +30,8 @@ INS error model (both back-ends, and the INS-alone covariance the filter carries
 psi-angle model of Titterton & Weston ch. 12 as in replay.gravity.sim.simulate_ins --
     dr' = dv;  dv' = f x psi + C_b^n ba - (g/R) dr  (Schuler);  psi' = -w_in x psi - C_b^n bg,
 with white velocity (VRW) and angle (ARW) noise; yaw-only body-to-nav rotation (a ship is level).
-With ``InsErrorSpec.air_data`` the reference is air-data dead reckoning instead (companion.gravity.air_data: airspeed
-along the heading plus a held wind): dr' = dv, dv' = white (the held wind's error walks), no attitude or bias terms.
+``InsErrorSpec.air_data``: air-data dead reckoning (companion.gravity.air_data): dr' = dv, dv' = white (the held wind's
+error walks); ``air_heading`` adds the heading error psiD: dr' += psiD (-vE_air, vN_air), psiD' = bgz + w, bgz' = w.
 
 Divergence (innovations inconsistent, no particle explaining the reading, a spread or estimate implausible under the
 INS-alone covariance) re-initialises around the reference; too little map variation along the track over
@@ -81,6 +81,11 @@ class InsErrorSpec:
     # a random walk of wind_walk_mps_rts m/s per sqrt(s)); the gyro, accelerometer and attitude terms do not apply
     air_data: bool = False
     wind_walk_mps_rts: float = 0.0
+    # air data with a heading of its own (companion.gravity.gyro_heading: the integrated z-gyro): its error is a state
+    # (prior init_heading_sigma_rad, angle random walk gyro_arw_deg_rthr) driven by the residual z-gyro bias (prior
+    # gyro_bias_degph, a random walk of gyro_bias_walk_degph_rth); it turns the air velocity (feed's air_vel_ne_mps)
+    air_heading: bool = False
+    gyro_bias_walk_degph_rth: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -221,6 +226,7 @@ class SequentialGravityFilter:
         self.tile: MapTile | None = None
         self.P_ins: np.ndarray | None = None
         self._last = None  # (ref_pos, ref_vel, heading, lat) of the previous reading
+        self._air_vel: np.ndarray | None = None  # the reference's air velocity at the previous reading (air_heading)
         self._nis = deque()  # (t, nis)
         self._lost = deque()  # t of readings no particle explained
         self._sig = deque()  # (distance, map value at the estimate)
@@ -270,14 +276,16 @@ class SequentialGravityFilter:
     # -- public ------------------------------------------------------------------------------------------
     def feed(self, t_s: float, g_mgal: float, ref_pos_ne_m, ref_vel_ne_mps, sigma_mgal: float, *,
              ref_cov_ne_m2=None, heading_rad: float | None = None, lat_deg: float | None = None,
-             eotvos_from_reference: bool = True, anchor: bool | None = None) -> SeqGravEstimate | None:
+             eotvos_from_reference: bool = True, anchor: bool | None = None,
+             air_vel_ne_mps=None) -> SeqGravEstimate | None:
         """One reading. ``ref_*`` is the reference solution at t_s whose error is estimated; ``ref_cov_ne_m2`` the
         navigator's own 2x2 covariance of it (optional; at least as good as ``anchor_h_sigma_m`` pins the filter to
         the reference, e.g. with GNSS). ``eotvos_from_reference``: the reading was Eotvos-corrected with the
         reference velocity (its velocity error leaves an Eotvos error in the reading); False when the sender
         corrected it with a velocity of its own. ``anchor``: None pins the filter whenever ``ref_cov_ne_m2`` is within
-        ``anchor_h_sigma_m``; False never (the covariance is then a prior only). Returns None for a reading that
-        cannot be used (non-finite, not after the previous one)."""
+        ``anchor_h_sigma_m``; False never (the covariance is then a prior only). ``air_vel_ne_mps``: the reference's air
+        velocity (map frame), which a heading error turns (``InsErrorSpec.air_heading``). Returns None for a reading
+        that cannot be used (non-finite, not after the previous one)."""
         c0 = time.process_time()
         cfg = self.cfg
         ref = np.asarray(ref_pos_ne_m, float).reshape(2)
@@ -288,6 +296,9 @@ class SequentialGravityFilter:
         if self.t_s is not None and t_s <= self.t_s:
             return None
         speed = float(np.hypot(*vel))
+        air = None if air_vel_ne_mps is None else np.asarray(air_vel_ne_mps, float).reshape(2)
+        if air is not None and not np.all(np.isfinite(air)):
+            air = None
         if heading_rad is None:
             heading_rad = float(np.arctan2(vel[1], vel[0])) if speed > 0.5 or self._last is None else self._last[2]
         lat = self._lat(ref[0], lat_deg)
@@ -299,7 +310,8 @@ class SequentialGravityFilter:
             self.P_ins = prior_covariance(cfg, pos_cov)
             self.be.init(self.P_ins)
         else:
-            self._propagate(float(t_s), ref, vel, speed)
+            self._propagate(float(t_s), ref, vel, speed, air)
+        self._air_vel = air
         if anchored:
             self._anchor(pos_cov)
             status = "anchored"
@@ -315,6 +327,8 @@ class SequentialGravityFilter:
         H = np.zeros(N_LIN)
         if eotvos_from_reference:
             H[IV:IV + 2] = -eotvos_jacobian_mgal_per_mps(vel, lat)
+            if cfg.ins.air_data and cfg.ins.air_heading and air is not None:  # the heading error turns the air velocity
+                H[IPSI + 2] = float(H[IV:IV + 2] @ np.array([-air[1], air[0]]))
         H[IB] = 1.0
         m_prev = self.be.moments()[0]
         self._ensure_tile(ref, m_prev)
@@ -381,7 +395,7 @@ class SequentialGravityFilter:
         return self.P_ins[:2, :2].copy()
 
     # -- internals ---------------------------------------------------------------------------------------
-    def _propagate(self, t_s: float, ref, vel, speed) -> None:
+    def _propagate(self, t_s: float, ref, vel, speed, air=None) -> None:
         cfg = self.cfg
         ref0, vel0, head0, lat0 = self._last
         dt_total = t_s - self.t_s
@@ -390,8 +404,11 @@ class SequentialGravityFilter:
         tau_b = self._tau_b(0.5 * (speed + float(np.hypot(*vel0))))
         nsub = int(np.ceil(dt_total / cfg.max_step_s))
         dt = dt_total / nsub
+        air_mid = None
+        if cfg.ins.air_data and cfg.ins.air_heading and air is not None:
+            air_mid = air if self._air_vel is None else 0.5 * (air + self._air_vel)
         A = error_dynamics(np.radians(lat0), vmid, acc, head0, tau_b, attitude_tau_s=cfg.ins.attitude_tau_s,
-                           air_data=cfg.ins.air_data)
+                           air_data=cfg.ins.air_data, air_vel_ne_mps=air_mid)
         sig_b = None if self.misfit is None else self.misfit.sigma_mgal(cfg.map_error.sigma_mgal)
         Phi, Qd = discretise(A, continuous_noise(cfg.ins, cfg.map_error, tau_b, sig_b), dt)
         qn = cfg.pos_noise_m_rts**2 * dt

@@ -39,7 +39,8 @@ def eotvos_jacobian_mgal_per_mps(vel_ne_mps, lat_deg: float) -> np.ndarray:
 
 
 def error_dynamics(lat_rad: float, vel_ne_mps, acc_ne_mps2, heading_rad: float, tau_b_s: float,
-                   R: float = WGS84_A_M, attitude_tau_s: float = 0.0, air_data: bool = False) -> np.ndarray:
+                   R: float = WGS84_A_M, attitude_tau_s: float = 0.0, air_data: bool = False,
+                   air_vel_ne_mps=None) -> np.ndarray:
     """Continuous A for [drN, drE | dsN, dsE, dvN, dvE, psiN, psiE, psiD, bgx, bgy, bgz, bax, bay, b_map].
 
     attitude_tau_s > 0: an INS whose attitude is held by an attitude reference (the companion's navigator fuses the
@@ -48,7 +49,9 @@ def error_dynamics(lat_rad: float, vel_ne_mps, acc_ne_mps2, heading_rad: float, 
     position, sets the vertical).
     air_data: the reference is air-data dead reckoning (companion.gravity.air_data): its velocity error is the error
     of the wind it holds (a random walk, continuous_noise), integrated into the position; no attitude, sensor-bias
-    or Schuler terms (psi and the biases stay at zero)."""
+    or Schuler terms (psi and the biases stay at zero); with ``air_vel_ne_mps`` (the reference's air velocity, its
+    heading of its own: InsErrorSpec.air_heading) the heading error psiD turns it, dr' += psiD (-vE_air, vN_air), and
+    psiD integrates the residual z-gyro bias bgz."""
     vN, vE = float(vel_ne_mps[0]), float(vel_ne_mps[1])
     aN, aE = float(acc_ne_mps2[0]), float(acc_ne_mps2[1])
     c, s = np.cos(heading_rad), np.sin(heading_rad)
@@ -61,6 +64,11 @@ def error_dynamics(lat_rad: float, vel_ne_mps, acc_ne_mps2, heading_rad: float, 
     A[rN, vn] = A[rE, ve] = A[sN, vn] = A[sE, ve] = 1.0
     A[b, b] = -1.0 / tau_b_s
     if air_data:
+        if air_vel_ne_mps is not None:
+            aN_, aE_ = float(air_vel_ne_mps[0]), float(air_vel_ne_mps[1])
+            A[rN, pd] = A[sN, pd] = -aE_
+            A[rE, pd] = A[sE, pd] = aN_
+            A[pd, gz] = 1.0
         return A
     # dv' = f x psi + C ba - (g/R) ds, f = (aN, aE, -g)
     A[vn, pe], A[vn, pd], A[vn, ax], A[vn, ay] = g, aE, c, -s
@@ -81,8 +89,11 @@ def continuous_noise(spec: InsErrorSpec, mspec: MapErrorSpec, tau_b_s: float,
     """misfit_sigma_mgal: the map misfit's sigma if not mspec.sigma_mgal (a learnt one, see MisfitVarianceLearner)."""
     q = np.zeros(N_ALL)
     q[N_NL + IV:N_NL + IV + 2] = (spec.accel_vrw_ug_rthz * UG_MPS2) ** 2
-    if spec.air_data:  # the held wind's error walks; nothing else moves
+    if spec.air_data:  # the held wind's error walks; nothing else moves (but the heading of its own, if any)
         q[N_NL + IV:N_NL + IV + 2] = spec.wind_walk_mps_rts**2
+        if spec.air_heading:
+            q[N_NL + IPSI + 2] = (np.radians(spec.gyro_arw_deg_rthr) / 60.0) ** 2
+            q[N_NL + IBG + 2] = (spec.gyro_bias_walk_degph_rth * DEGPH_RADPS / 60.0) ** 2
     elif spec.attitude_tau_s > 0:  # stationary reference errors: q = 2 sigma^2 / tau
         q[N_NL + IPSI:N_NL + IPSI + 2] = 2.0 * spec.attitude_tilt_sigma_rad**2 / spec.attitude_tau_s
         q[N_NL + IPSI + 2] = 2.0 * spec.attitude_heading_sigma_rad**2 / spec.attitude_tau_s
@@ -107,6 +118,9 @@ def prior_covariance(cfg: SeqGravConfig, pos_cov_ne_m2: np.ndarray) -> np.ndarra
     d = np.zeros(N_ALL)
     o = N_NL
     d[o + IV:o + IV + 2] = s.init_vel_sigma_mps**2
+    if s.air_data and s.air_heading:  # a heading of its own: its error and its z-gyro's residual bias
+        d[o + IPSI + 2] = s.init_heading_sigma_rad**2
+        d[o + IBG + 2] = (s.gyro_bias_degph * DEGPH_RADPS) ** 2
     if not s.air_data:  # (air data: no attitude or sensor-bias states)
         aided = s.attitude_tau_s > 0
         d[o + IPSI:o + IPSI + 2] = (s.attitude_tilt_sigma_rad if aided else s.init_tilt_sigma_rad) ** 2

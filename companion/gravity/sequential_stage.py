@@ -272,5 +272,8 @@ def seq_config_of(gravity) -> SeqGravConfig:
                        attitude_tilt_sigma_rad=gravity.seq_attitude_tilt_sigma_rad,
                        attitude_heading_sigma_rad=gravity.seq_attitude_heading_sigma_rad,
                        air_data=getattr(gravity, "reference", "navigator") == "air_data",
-                       wind_walk_mps_rts=getattr(gravity, "seq_wind_walk_mps_rts", 0.0))
+                       wind_walk_mps_rts=getattr(gravity, "seq_wind_walk_mps_rts", 0.0),
+                       air_heading=getattr(gravity, "reference", "navigator") == "air_data"
+                       and getattr(gravity, "air_heading", "attitude") == "gyro",
+                       gyro_bias_walk_degph_rth=getattr(gravity, "air_gyro_bias_walk_degph_rth", 0.0))
     return SeqGravConfig(n_particles=gravity.seq_particles, noise_corr_s=gravity.seq_noise_corr_s, ins=ins)

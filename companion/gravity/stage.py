@@ -355,13 +355,18 @@ def live_gravity_stage(config) -> Stage:
     if config.matcher == "sequential" and config.reference == "air_data":
         from companion.gravity.air_data import AirDataConfig
         from companion.gravity.air_data_stage import AirDataGravityStage
+        from companion.gravity.gyro_heading import GYRO_SOURCES, GyroHeadingConfig
         from companion.gravity.sequential_stage import seq_config_of
 
         return AirDataGravityStage(lmap, seq_config_of(config), AirDataConfig(wind_window_s=config.air_wind_window_s),
                                    sigma_mgal=config.sigma_mgal, reading_delay_s=config.reading_delay_s,
                                    source=f"gravity:{config.named_value}:air_data",
                                    speed_sigma_floor_mps=config.air_speed_sigma_floor_mps,
-                                   heading=config.air_heading)
+                                   heading=config.air_heading,
+                                   gyro=GyroHeadingConfig(window_s=config.air_gyro_window_s,
+                                                          bias_walk_degph_rth=config.air_gyro_bias_walk_degph_rth,
+                                                          arw_deg_rth=config.air_gyro_arw_deg_rth),
+                                   gyro_imu_index=GYRO_SOURCES[config.air_gyro_source])
     if config.matcher == "sequential":
         from companion.gravity.sequential_stage import SequentialGravityStage, seq_config_of
 

@@ -47,6 +47,7 @@ WANTED_TYPES = (
     "SCALED_IMU",
     "SCALED_IMU2",
     "SCALED_IMU3",
+    "HIGHRES_IMU",
     "ATTITUDE",
     "SYSTEM_TIME",
     "STATUSTEXT",
@@ -55,6 +56,9 @@ WANTED_TYPES = (
 )
 
 _IMU_INDEX = {"RAW_IMU": 0, "SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
+#: HIGHRES_IMU (ArduPilot: its primary IMU, in floats: RAW_IMU's int16 mrad/s truncates rates towards zero) is an IMU
+#: index of its own, so that it never mixes with RAW_IMU's samples of the same sensor
+HIGHRES_IMU_INDEX = 3
 #: time_usec above this is a Unix epoch (after 2001), not a boot time.
 _EPOCH_US = 1e15
 
@@ -235,6 +239,17 @@ class MavlinkDecoder:
             self._mag_t_s = t_s  # ArduPilot's first compass (mGauss), at most every MAG_PERIOD_S (heading enough)
             out.append(MagField(t_s=t_s, field_frd_gauss=(msg.xmag * 1e-3, msg.ymag * 1e-3, msg.zmag * 1e-3)))
 
+    def _highres_imu(self, msg, recv_s: float, out: list[Event]) -> None:
+        vals = (msg.xacc, msg.yacc, msg.zacc, msg.xgyro, msg.ygyro, msg.zgyro)
+        if not _finite(*vals):
+            self.dropped["HIGHRES_IMU non-finite"] += 1
+            return
+        boot_s = units.s_from_us(msg.time_usec) if 0 < msg.time_usec < _EPOCH_US else None
+        t_s = self._stamp(boot_s, recv_s, out)
+        if t_s is not None:
+            out.append(ImuSample(t_s=t_s, accel_frd_mps2=tuple(float(v) for v in vals[:3]),
+                                 gyro_frd_radps=tuple(float(v) for v in vals[3:]), imu_index=HIGHRES_IMU_INDEX))
+
     def _attitude(self, msg, recv_s: float, out: list[Event]) -> None:
         if not _finite(msg.roll, msg.pitch, msg.yaw):
             self.dropped["ATTITUDE non-finite"] += 1
@@ -302,6 +317,7 @@ _HANDLERS = {
     "SCALED_IMU": MavlinkDecoder._imu,
     "SCALED_IMU2": MavlinkDecoder._imu,
     "SCALED_IMU3": MavlinkDecoder._imu,
+    "HIGHRES_IMU": MavlinkDecoder._highres_imu,
     "ATTITUDE": MavlinkDecoder._attitude,
     "SYSTEM_TIME": MavlinkDecoder._system_time,
     "STATUSTEXT": MavlinkDecoder._statustext,

@@ -3,7 +3,7 @@
 pymavlink's parser costs about 35 us a frame in pure Python (its CRC loops over every byte): a burst of tens of
 thousands of frames a second is more than one core can parse, the socket's queue grows and everything behind it
 arrives seconds late. :class:`ImuShedder` walks the raw bytes (header, length and message id only, no CRC) and
-removes the IMU frames (RAW_IMU, SCALED_IMU, SCALED_IMU2/3) that come less than ``min_interval_s`` (their own
+removes the IMU frames (RAW_IMU, SCALED_IMU, SCALED_IMU2/3, HIGHRES_IMU) that come less than ``min_interval_s`` (their own
 time stamp) after the last one kept from the same sender; everything else, including what it cannot frame
 (garbage, a frame cut by the end of the buffer), passes through untouched for the parser to judge.
 
@@ -15,7 +15,7 @@ from __future__ import annotations
 import re
 
 #: message id -> (time stamp bytes at the start of the payload, seconds per unit)
-IMU_TIME = {27: (8, 1e-6), 26: (4, 1e-3), 116: (4, 1e-3), 129: (4, 1e-3)}
+IMU_TIME = {27: (8, 1e-6), 26: (4, 1e-3), 116: (4, 1e-3), 129: (4, 1e-3), 105: (8, 1e-6)}
 _MAGIC = re.compile(b"[\xfd\xfe]")
 _V2, _V1 = 0xFD, 0xFE
 

@@ -165,3 +165,18 @@ def test_dataflash_pos_is_the_autopilots_position():
     assert dec.decode(_Row("POS", {"TimeUS": 12_600_000, "Lat": 0.0, "Lng": 0.0, "Alt": 0.0})) == []  # none yet
     assert dec.decode(_Row("POS", {"TimeUS": 12_700_000, "Lat": 95.0, "Lng": 8.5, "Alt": 488.0})) == []
     assert dec.dropped == {"POS position out of range": 1}
+
+
+def test_highres_imu_is_an_imu_of_its_own_in_floats():
+    """HIGHRES_IMU (floats: a rate of 0.4 mrad/s, which RAW_IMU's int16 mrad/s truncates to 0) arrives as IMU index 3,
+    never mixed with RAW_IMU's index 0; a non-finite field drops the sample."""
+    m = mavlink.MAVLink_highres_imu_message(5_000_000, 0.1, -0.2, -9.8, 0.0004, -0.0012, 0.25, 0, 0, 0, 1000.0, 0, 0,
+                                            20.0, 0x3F, 0)
+    dec = _decoder()
+    (imu,) = dec.decode(_wire(m), 1.0)
+    assert isinstance(imu, ImuSample) and imu.imu_index == 3 and imu.t_s == pytest.approx(5.0)
+    assert imu.gyro_frd_radps == pytest.approx((0.0004, -0.0012, 0.25), rel=1e-6)
+    assert imu.accel_frd_mps2 == pytest.approx((0.1, -0.2, -9.8), rel=1e-6)
+    bad = mavlink.MAVLink_highres_imu_message(5_100_000, math.nan, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0x3F, 0)
+    assert dec.decode(_wire(bad), 1.1) == []
+    assert dec.dropped["HIGHRES_IMU non-finite"] == 1
