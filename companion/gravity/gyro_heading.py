@@ -16,7 +16,8 @@ Its stated 1-sigma error ``tau`` after the freeze (``sigma_rad``) is
     sigma^2 = sigma_a^2 + (sigma_b tau)^2 + arw^2 tau + walk^2 tau^3 / 3
 
 with sigma_a, sigma_b the fit's (its residual scatter over ``n = span / yaw_corr_s`` independent samples: the yaw's
-errors are correlated; sigma_a floored at ``align_floor_deg``, the yaw's own error with GNSS), ``arw`` the integration's
+errors are correlated; floored by ``align_floor_deg``, the yaw's own error with GNSS: sigma_a at it, sigma_b at the
+slope it makes across the window, sqrt(12) floor / span), ``arw`` the integration's
 angle random walk and ``walk`` the bias's in-run drift (a rate random walk). The same four terms are the gravity
 filter's heading-error and z-gyro-bias states (companion.gravity.sequential ``InsErrorSpec.air_heading``).
 Pure: vehicle time only.
@@ -153,7 +154,9 @@ class GyroHeading:
         n_ind = max(2.0, span / self.cfg.yaw_corr_s)
         # n_ind independent samples spread evenly over the span: var(slope) = s^2 12 / (n span^2); the line at the
         # window's end (span / 2 from its centre): s^2 (1/n + 3/n) = 4 s^2 / n
-        sig_b = math.sqrt(res2 * 12.0 / (n_ind * span * span))
+        # ... and never better than a drift of the yaw by its own error (align_floor_deg) across the window would make it
+        sig_b = max(math.sqrt(res2 * 12.0 / (n_ind * span * span)),
+                    math.sqrt(12.0) * math.radians(self.cfg.align_floor_deg) / span)
         sig_a = math.hypot(math.sqrt(4.0 * res2 / n_ind), math.radians(self.cfg.align_floor_deg))
         self._fit = (a, b, sig_a, sig_b, t_end)
         return self._fit

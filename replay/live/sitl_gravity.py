@@ -68,16 +68,17 @@ COMPANION_PARAMS = {"GPS2_TYPE": 14, "GPS_AUTO_SWITCH": 4, "GPS_PRIMARY": 0, "SE
                     "EK3_SRC1_POSXY": 3, "EK3_SRC1_VELXY": 3, "EK3_SRC1_POSZ": 1}
 #: the companion's settings: the recommended set-up (replay.live.sitl.COMPANION_SETS) in ``backup`` (in the outage a fix
 #: only while gravity aids it), the sequential gravity filter on air-data dead reckoning (companion.gravity.air_data_stage:
-#: the navigator's INS on ArduPlane's MEMS IMU does not hold, docs/decisions/0012), its heading EKF3's ATTITUDE yaw
-#: (which turns with the fixes EKF3 fuses; the compass with an offset learnt on one heading was worse: 0012), readings
-#: Eotvos-uncorrected,
+#: the navigator's INS on ArduPlane's MEMS IMU does not hold, docs/decisions/0012), its heading the autopilot's gyro
+#: integrated (HIGHRES_IMU: RAW_IMU truncates to whole mrad/s), bias fitted to ATTITUDE yaw with GNSS and frozen in the
+#: outage (EKF3's yaw turns with the fixes it fuses; the compass was worse: 0012), readings Eotvos-uncorrected,
 #: white per reading and describing the vehicle half the gravimeter's 30 s window before their stamp, the held wind's
 #: error a random walk of 0.1 m/s per sqrt(s) from a 1 m/s prior; its states sent as 3D fixes with their honest h_acc
 #: (EKF3 weighs a GPS by its reported accuracy, capped at 100 m: AP_NavEKF3_PosVelFusion) and a speed accuracy of 50 m/s
 #: (EKF3's cap: their velocity, made of EKF3's own yaw, is not to steer that yaw)
 COMPANION_SETS = ['inject.activate="backup"', "navigator.gnss_delay_estimate=true", "navigator.fuse_attitude_yaw=true",
                   "inject.backup_fix_when_armed=false", "navigator.motion_prior=false", "gravity.matcher=sequential",
-                  'gravity.reference="air_data"', 'gravity.air_heading="attitude"', "gravity.eotvos_corrected=false", "gravity.seq_noise_corr_s=1",
+                  'gravity.reference="air_data"', 'gravity.air_heading="gyro"', 'gravity.air_gyro_source="HIGHRES_IMU"',
+                  "gravity.eotvos_corrected=false", "gravity.seq_noise_corr_s=1",
                   "gravity.reading_delay_s=15", "gravity.seq_init_vel_sigma_mps=1", "gravity.seq_wind_walk_mps_rts=0.1",
                   "gravity.seq_particles=500", "gravity.air_speed_sigma_floor_mps=50", "inject.max_h_acc_3d_m=20000", "inject.max_h_acc_2d_m=40000",
                   "inject.max_v_acc_3d_m=200"]

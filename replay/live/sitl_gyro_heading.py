@@ -8,7 +8,8 @@ Reads DIR/companion.mcap (the companion's recorded inputs) and DIR/log.json (the
 the denial's marks). Learns while GNSS1 has a 3D fix, freezes at the denial's start, as the air-data stage does.
 Prints, every 5 min of the denial, the gyro heading's error against SIMSTATE yaw, its stated sigma and EKF3's ATTITUDE
 yaw error; the RMS over the denial and the share within 2 sigma; and the integration's error over each turn (the
-change of ``I - true yaw`` across it, less the learnt bias times its duration). Nothing is flown.
+change of ``I - true yaw`` across it, less the learnt bias times its duration) and the bare integral's drift against the
+truth since the denial's start. Nothing is flown.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from replay.live.sitl_gravity_rerun import recorded_inputs
 GNSS_TIMEOUT_S = 0.6
 
 
-def analyse(arm_dir: Path, cfg: GyroHeadingConfig) -> dict:
+def analyse(arm_dir: Path, cfg: GyroHeadingConfig, imu_index: int = 3) -> dict:
     log = json.loads((arm_dir / "log.json").read_text())
     on, off = float(log["marks"]["deny_on"]), float(log["marks"].get("deny_off", math.inf))
     ty = np.asarray(log["truth_yaw"], float)
@@ -42,7 +43,7 @@ def analyse(arm_dir: Path, cfg: GyroHeadingConfig) -> dict:
             good_t = e.t_s
         elif isinstance(e, ev.Attitude):
             gh.attitude(e.t_s, e.roll_rad, e.pitch_rad, e.yaw_rad, learn=e.t_s - good_t <= GNSS_TIMEOUT_S)
-        elif isinstance(e, ev.ImuSample) and e.imu_index == 0:
+        elif isinstance(e, ev.ImuSample) and e.imu_index == imu_index:
             if e.t_s >= on:
                 gh.freeze(on)
             gh.gyro(e.t_s, e.gyro_frd_radps)
@@ -56,17 +57,20 @@ def analyse(arm_dir: Path, cfg: GyroHeadingConfig) -> dict:
     att = np.asarray(log["yaw"], float)
     asel = (att[:, 0] >= on) & (att[:, 0] < off)
     att_err = np.angle(np.exp(1j * (att[asel, 1] - np.interp(att[asel, 0], t_tr, yaw_tr))))
+    d_int = a[:, 3] - np.interp(a[:, 0], t_tr, yaw_tr)  # the bare integral against the truth
+    d_on = float(np.interp(on, a[:, 0], d_int))
     marks = {}
     for m in range(5, int((min(off, t[-1]) - on) / 60.0) + 1, 5):
         k = int(np.searchsorted(t, on + 60.0 * m))
         ka = int(np.searchsorted(att[asel, 0], on + 60.0 * m))
         if k < t.size:
             marks[str(m)] = {"gyro_deg": float(np.degrees(err[k])), "sigma_deg": float(np.degrees(sig[k])),
-                             "attitude_deg": float(np.degrees(att_err[min(ka, att_err.size - 1)]))}
-    # turns: the truth turning faster than 1 deg/s, joined while closer than 10 s; I - truth across each
+                             "attitude_deg": float(np.degrees(att_err[min(ka, att_err.size - 1)])),
+                             "integral_drift_deg": float(np.degrees(np.interp(on + 60.0 * m, a[:, 0], d_int) - d_on))}
+    # turns: the truth turning faster than 1 deg/s, joined while closer than 10 s, by more than 30 deg in all
     rate = np.gradient(yaw_tr, t_tr)
     turning = np.abs(rate) > math.radians(1.0)
-    d_all = a[:, 3] - np.interp(a[:, 0], t_tr, yaw_tr)
+    d_all = d_int
     turns = []
     i = 0
     idx = np.nonzero(turning)[0]
@@ -75,10 +79,10 @@ def analyse(arm_dir: Path, cfg: GyroHeadingConfig) -> dict:
         while j + 1 < idx.size and t_tr[idx[j + 1]] - t_tr[idx[j]] < 10.0:
             j += 1
         t0, t1 = t_tr[idx[i]] - 5.0, t_tr[idx[j]] + 5.0
-        if t1 - t0 > 20.0 and a[0, 0] < t0 and t1 < a[-1, 0]:
+        turned = float(np.interp(t1, t_tr, yaw_tr) - np.interp(t0, t_tr, yaw_tr))
+        if abs(turned) > math.radians(30.0) and a[0, 0] < t0 and t1 < a[-1, 0]:
             b = gh.bias_radps or 0.0
             dd = float(np.interp(t1, a[:, 0], d_all) - np.interp(t0, a[:, 0], d_all)) - b * (t1 - t0)
-            turned = float(np.interp(t1, t_tr, yaw_tr) - np.interp(t0, t_tr, yaw_tr))
             turns.append({"t_s": float(t0), "turned_deg": float(np.degrees(turned)), "error_deg": float(np.degrees(dd))})
         i = j + 1
     f = gh.fit()
@@ -96,9 +100,10 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("arm_dir", type=Path, help="a kept flight's companion arm (its --outdir/companion)")
     p.add_argument("--window-s", type=float, default=GyroHeadingConfig.window_s)
+    p.add_argument("--imu-index", type=int, default=3, help="0: RAW_IMU, 3: HIGHRES_IMU (companion.mavlink.decode)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     a = p.parse_args(argv)
-    r = analyse(a.arm_dir, GyroHeadingConfig(window_s=a.window_s))
+    r = analyse(a.arm_dir, GyroHeadingConfig(window_s=a.window_s), a.imu_index)
     if a.json:
         print(json.dumps(r, indent=1))
         return 0
@@ -106,7 +111,7 @@ def main(argv=None) -> int:
           f"{r['sigma_align_deg']:.2f} deg; {r['samples']} gyro samples, {r['gaps']} gaps, {r['unlevelled']} unlevelled")
     for m, v in r["marks"].items():
         print(f"+{m:>3} min: gyro {v['gyro_deg']:+6.2f} deg (sigma {v['sigma_deg']:.2f}), ATTITUDE yaw "
-              f"{v['attitude_deg']:+6.2f} deg")
+              f"{v['attitude_deg']:+6.2f} deg; the bare integral drifted {v['integral_drift_deg']:+.2f} deg")
     print(f"denial: gyro heading {r['gyro_rms_deg']:.2f} deg RMS, {100 * r['gyro_within_2sigma']:.0f} % within 2 sigma; "
           f"ATTITUDE yaw {r['attitude_rms_deg']:.2f} deg RMS")
     for tr in r["turns"]:

@@ -90,9 +90,11 @@ def test_gyro_heading_holds_to_its_stated_sigma_over_an_hour():
 
 
 def test_gyro_heading_error_is_small_after_an_hour():
-    """What the stated sigma means in degrees: the hour-end sigma is a few degrees, not tens."""
+    """What the stated sigma means in degrees: the hour-end sigma is a few degrees, not tens (6.0 deg: the bias's sigma
+    is floored by the slope a 0.5 deg yaw error makes across the 20 min window, 5.2 deg/h, which this simulation's yaw,
+    a 60 s Gauss-Markov process, does not need; ArduPlane SITL's did: docs/decisions/0012)."""
     out, _ = fly(3)
-    assert math.degrees(out[-1, 2]) < 5.0
+    assert math.degrees(out[-1, 2]) < 7.0
     assert math.degrees(np.sqrt(np.mean(out[:, 1] ** 2))) < 3.0
 
 
