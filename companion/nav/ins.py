@@ -122,6 +122,8 @@ class StrapdownIns:
         self._omega = EARTH_RATE_RADPS if earth_rate else 0.0
         self._dcm_q: tuple | None = None  # the attitude self._dcm was built for
         self._dcm: np.ndarray | None = None
+        self._dcm_neg_q: tuple | None = None
+        self._dcm_neg: np.ndarray | None = None
 
     # -- geometry helpers
     def radii(self) -> tuple[float, float]:
@@ -156,6 +158,14 @@ class StrapdownIns:
             C.flags.writeable = False
             self._dcm, self._dcm_q = C, self.q
         return self._dcm
+
+    def dcm_neg(self) -> np.ndarray:
+        """-C_b^n (the error model's bias blocks), built once per attitude like :meth:`dcm`."""
+        if self.q is not self._dcm_neg_q:
+            C = -self.dcm()
+            C.flags.writeable = False
+            self._dcm_neg, self._dcm_neg_q = C, self.q
+        return self._dcm_neg
 
     def nav_rates(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
         """(w_ie^n, w_en^n) in rad/s."""

@@ -28,7 +28,8 @@ from companion.nav.gnss_lag import GnssLatency
 from companion.nav.imu_accumulator import ImuAccumulator
 from companion.nav.ins import StrapdownIns, quat_from_euler
 from companion.nav.kalman import KalmanFilter
-from companion.nav.measurements import InsView, Measurement, gate, skew
+from companion.nav.linalg import small_inverse
+from companion.nav.measurements import InsView, Measurement, selected_columns
 from companion.nav.outputs import MeasurementUpdate
 
 
@@ -47,6 +48,10 @@ def _model(c: NavigatorConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     for a in (F, q):
         a.flags.writeable = False
     return F, np.eye(15), q
+
+
+_ZERO_X = np.zeros((15, 1))
+_ZERO_X.flags.writeable = False  # the error state between updates (replaced, never changed in place)
 
 
 class InsFilter:
@@ -82,6 +87,7 @@ class InsFilter:
         self._f_sum = [0.0, 0.0, 0.0]
         self._f_n = 0
         self._model = _model(c)
+        self._F = self._model[0].copy()
         self._acc = ImuAccumulator()
         self._step_s = 1.0 / c.ins_rate_hz
 
@@ -154,22 +160,25 @@ class InsFilter:
         if dt <= 0:
             return
         ins = self.strapdown
-        if self._f_n:
-            f = np.array(self._f_sum) / self._f_n
+        n = self._f_n
+        if n:
+            fs = self._f_sum
+            fx, fy, fz = fs[0] / n, fs[1] / n, fs[2] / n
         else:
-            f = np.array(ins.f_ned)
+            fx, fy, fz = ins.f_ned
         self._f_sum = [0.0, 0.0, 0.0]
         self._f_n = 0
-        C = ins.dcm()
-        F0, eye15, q_per_s = self._model
-        F = F0.copy()
-        F[3:6, 6:9] = -skew(f)
-        F[3:6, 9:12] = F[6:9, 12:15] = -C
+        F = self._F  # the model's constant blocks, and these set in place
+        F[3:6, 6:9] = ((0.0, fz, -fy), (-fz, 0.0, fx), (fy, -fx, 0.0))  # -[f x]
+        F[3:6, 9:12] = F[6:9, 12:15] = ins.dcm_neg()
         Fd = F * dt
-        phi = eye15 + Fd + 0.5 * Fd @ Fd
+        phi = Fd @ Fd  # phi = I + F dt + (F dt)^2 / 2
+        phi *= 0.5
+        phi += Fd
+        phi.flat[::16] += 1.0
         kf = self.kf  # P = phi P phi' + Q dt; the error state x is zero between updates, and stays so
         P = phi @ kf.P @ phi.T
-        P.flat[::16] += q_per_s * dt
+        P.flat[::16] += self._model[2] * dt
         kf.P = P
         self.t_s = t
 
@@ -181,21 +190,30 @@ class InsFilter:
         pos, vel = self.state_at(m.t_s, m.delay_s)
         y, H, R = m.compute_ins(InsView(pos, vel, self.strapdown.dcm()))
         kf = self.kf
+        P = kf.P
+        cols = selected_columns(H)
+        if cols is None:
+            PHT = P @ H.T
+            HPHT = H @ PHT
+        else:  # H picks consecutive states: P H' and H P H' are slices
+            PHT = P[:, cols]
+            HPHT = P[cols, cols]
+        S = HPHT + R
+        S_inv = small_inverse(S)
         Rg = m.R_gate()
-        PHT = kf.P @ H.T
-        HPHT = H @ PHT
-        nis, ok = gate(y, HPHT + (R if Rg is None else np.maximum(R, Rg)), m.gate_chi2)
+        nis = float(y @ (S_inv if Rg is None else small_inverse(HPHT + np.maximum(R, Rg))) @ y)
+        ok = nis <= m.gate_chi2
         self._emit(
             MeasurementUpdate(m.t_s, m.kind, "ins", tuple(y.tolist()), tuple(np.sqrt(R.diagonal()).tolist()), nis,
                               m.gate_chi2, ok)
         )
         if not ok:
             return False, y
-        kf.update_innovation(y, R, H, PHT, HPHT + R, m.gain_rows_ins())  # (x is zero between updates: y = z - H x)
-        dx = kf.x.ravel().tolist()  # Python floats: the strapdown INS (plain Python, every IMU sample) then runs on
-        # floats rather than numpy scalars, which are several times slower per operation
+        # (x is zero between updates: y = z - H x)
+        dx = kf.update_innovation(y, R, H, PHT, S, m.gain_rows_ins(), cols, S_inv).tolist()  # Python floats: the
+        # strapdown INS (plain Python, every IMU sample) then runs on floats rather than numpy scalars
         self.correct(dx[0:3], dx[3:6], dx[6:9], dx[9:12], dx[12:15])
-        kf.x = np.zeros((15, 1))
+        kf.x = _ZERO_X
         return True, y
 
     def correct(self, dp, dv, psi, dba, dbg) -> None:

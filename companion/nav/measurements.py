@@ -15,12 +15,28 @@ from companion.constants import CHI2_1DOF_999, CHI2_2DOF_999, CHI2_3DOF_999
 from companion.nav.linalg import solve
 
 
+_SELECTIONS: dict[int, tuple[np.ndarray, slice]] = {}  # id -> (H, the states it picks), for the constants below
+
+
 def _selection(rows: int, first: int) -> np.ndarray:
     """The constant Jacobian picking ``rows`` consecutive error states from ``first`` (read-only: shared)."""
     H = np.zeros((rows, 15))
     H[:, first:first + rows] = np.eye(rows)
     H.flags.writeable = False
+    _SELECTIONS[id(H)] = (H, slice(first, first + rows))
     return H
+
+
+def selected_columns(H: np.ndarray) -> slice | None:
+    """The consecutive error states H picks when it is one of this module's selections (H = the identity's rows
+    ``cols``: then P H' is ``P[:, cols]``), else None."""
+    e = _SELECTIONS.get(id(H))
+    return e[1] if e is not None and e[0] is H else None
+
+
+def _diag3(a: float, b: float, c: float) -> np.ndarray:
+    """np.diag([a, b, c]) in one call."""
+    return np.array(((a, 0.0, 0.0), (0.0, b, 0.0), (0.0, 0.0, c)))
 
 
 _H_POS, _H_NE, _H_VEL, _H_ATT = _selection(3, 0), _selection(2, 0), _selection(3, 3), _selection(3, 6)
@@ -31,9 +47,7 @@ _VELOCITY_ROWS = np.zeros(15, dtype=bool)
 _VELOCITY_ROWS[3:6] = True
 _VELOCITY_ROWS.flags.writeable = False
 _H_VNE = _selection(2, 3)
-_H_DOWN = np.zeros((1, 15))
-_H_DOWN[0, 2] = 1.0
-_H_DOWN.flags.writeable = False
+_H_DOWN = _selection(1, 2)
 
 
 def skew(v) -> np.ndarray:
@@ -100,11 +114,12 @@ class PositionMeasurement(Measurement):
         return np.asarray(self.z_ned_m, dtype=float)
 
     def R(self):
-        return np.diag([self.sigma_h_m**2, self.sigma_h_m**2, self.sigma_v_m**2])
+        h2 = self.sigma_h_m**2
+        return _diag3(h2, h2, self.sigma_v_m**2)
 
     def R_gate(self):
         g = self.gate_sigma
-        return None if g is None else np.diag([g[0] ** 2, g[0] ** 2, g[1] ** 2])
+        return None if g is None else _diag3(g[0] ** 2, g[0] ** 2, g[1] ** 2)
 
     def h_ins(self, s: InsView):
         return s.pos_ned_m
@@ -210,7 +225,8 @@ class VelocityMeasurement(Measurement):
         return np.asarray(self.z_ned_mps, dtype=float)
 
     def R(self):
-        return np.eye(3) * self.sigma_mps**2
+        v = self.sigma_mps**2
+        return _diag3(v, v, v)
 
     def h_ins(self, s: InsView):
         return s.vel_ned_mps
@@ -241,7 +257,7 @@ class AttitudeMeasurement(Measurement):
         return np.zeros(3)
 
     def R(self):
-        return np.diag(self.var_rad2)
+        return _diag3(*self.var_rad2)
 
     def h_ins(self, s: InsView):
         E = self.c_meas @ s.dcm.T

@@ -1,9 +1,11 @@
-"""The navigator's linear Kalman filter: known posteriors, and filterpy's KalmanFilter bit for bit."""
+"""The navigator's linear Kalman filter: known posteriors, filterpy's KalmanFilter to rounding, and the Joseph form
+on a selection H (P H' a slice of P) equal to the dense one."""
 
 import numpy as np
 import pytest
 
-from companion.nav.kalman import KalmanFilter
+from companion.nav.kalman import KalmanFilter, joseph
+from companion.nav.linalg import small_inverse
 
 
 def test_scalar_update_matches_the_closed_form():
@@ -26,7 +28,7 @@ def test_predict_propagates_a_constant_velocity_state():
     np.testing.assert_allclose(kf.P, [[1.0 + 9 * 0.5 + 0.1, 1.5], [1.5, 0.7]], rtol=1e-15)
 
 
-def test_bit_identical_to_filterpy_over_a_random_run():
+def test_equal_to_filterpy_over_a_random_run():
     fp = pytest.importorskip("filterpy.kalman")
     rng = np.random.default_rng(7)
     ours, ref = KalmanFilter(dim_x=15, dim_z=3), fp.KalmanFilter(dim_x=15, dim_z=3)
@@ -43,7 +45,9 @@ def test_bit_identical_to_filterpy_over_a_random_run():
         z = rng.standard_normal((3, 1))
         ours.update(z, R=R, H=H)
         ref.update(z, R=R, H=H)
-    assert np.array_equal(ours.x, ref.x) and np.array_equal(ours.P, ref.P)
+    # (the innovation covariance is inverted in closed form, filterpy calls LAPACK: equal to rounding)
+    np.testing.assert_allclose(ours.x, ref.x, rtol=1e-12, atol=1e-12 * np.abs(ref.x).max())
+    np.testing.assert_allclose(ours.P, ref.P, rtol=1e-12, atol=1e-12 * np.abs(ref.P).max())
     assert np.allclose(ours.P, ours.P.T) and np.all(np.linalg.eigvalsh(ours.P) > 0)
 
 
@@ -84,3 +88,50 @@ def test_a_restricted_gain_corrects_only_its_states_and_keeps_an_honest_covarian
     a.update(np.array([[2.0]]), R=R, H=H)
     b.update(np.array([[2.0]]), R=R, H=H, gain_rows=np.ones(4, dtype=bool))
     assert np.array_equal(a.x, b.x) and np.array_equal(a.P, b.P)
+
+
+def _dense_update(P, y, H, R, gain_rows=None):
+    """The textbook update, every matrix dense: K = P H' (H P H' + R)^-1, Joseph form."""
+    K = P @ H.T @ np.linalg.inv(H @ P @ H.T + R)
+    if gain_rows is not None:
+        K = K * gain_rows.reshape(-1, 1)
+    I_KH = np.eye(P.shape[0]) - K @ H
+    return K @ y, I_KH @ P @ I_KH.T + K @ R @ K.T
+
+
+@pytest.mark.parametrize("rows, first", [(3, 0), (2, 0), (3, 3), (2, 3), (3, 6), (1, 2)])
+def test_the_update_on_a_selection_equals_the_dense_update(rows, first):
+    """update_innovation with ``cols`` (H the identity's rows first..first+rows: P H' a slice, the Joseph form in
+    O(n^2 m)) against the dense algebra on random covariances, noises (the attitude's 1e6 rad^2 yaw among them) and
+    restricted gains; and chained 300 times, as the filter runs it, against the dense chain."""
+    rng = np.random.default_rng(11 + rows + first)
+    cols = slice(first, first + rows)
+    H = np.zeros((rows, 15))
+    H[:, cols] = np.eye(rows)
+    P_fast = P_dense = np.eye(15)
+    for i in range(300):
+        A = rng.standard_normal((15, 15))
+        P0 = A @ A.T * rng.uniform(0.01, 10.0) + np.diag(rng.uniform(1e-6, 1.0, 15))
+        r = rng.uniform(1e-4, 4.0, rows)
+        if rows == 3 and i % 3 == 0:
+            r[2] = 1e6
+        B = rng.standard_normal((rows, rows)) * 0.1
+        R = np.diag(r) + B @ B.T
+        y = rng.standard_normal(rows)
+        gain_rows = (rng.uniform(size=15) < 0.5) if i % 4 == 1 else None
+        kf = KalmanFilter(dim_x=15, dim_z=rows)
+        kf.P = P0.copy()
+        dx = kf.update_innovation(y, R, H, P0[:, cols], P0[cols, cols] + R, gain_rows, cols)
+        dx_ref, P_ref = _dense_update(P0, y, H, R, gain_rows)
+        np.testing.assert_allclose(dx, dx_ref, rtol=1e-12, atol=1e-12 * np.abs(dx_ref).max())
+        np.testing.assert_allclose(kf.P, P_ref, rtol=1e-12, atol=1e-12 * np.abs(P_ref).max())
+        np.testing.assert_allclose(kf.x.ravel(), dx_ref, rtol=1e-12, atol=1e-12 * np.abs(dx_ref).max())
+        # the chain: predict with a random transition, update, 300 times
+        F = np.eye(15) + 0.05 * rng.standard_normal((15, 15))
+        Q = np.diag(rng.uniform(1e-6, 1e-2, 15))
+        P_fast, P_dense = F @ P_fast @ F.T + Q, F @ P_dense @ F.T + Q
+        K = P_fast[:, cols] @ small_inverse(P_fast[cols, cols] + R)
+        P_fast = joseph(P_fast, K, H, R, cols)
+        P_dense = _dense_update(P_dense, y, H, R)[1]
+    np.testing.assert_allclose(P_fast, P_dense, rtol=1e-10, atol=1e-12 * np.abs(P_dense).max())
+    assert np.all(np.linalg.eigvalsh(P_fast) > 0)
