@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.nav.kalman import KalmanFilter
-from companion.nav.linalg import inverse
+from companion.nav.linalg import small_inverse
 
 
 @dataclass(frozen=True)
@@ -63,6 +63,19 @@ def cv_model(dt: float, accel_sigma_mps2: float) -> tuple[np.ndarray, np.ndarray
     return F, Q
 
 
+def _det(S: np.ndarray) -> float:
+    """det(S), in Python floats for a 1-3 x 3 matrix."""
+    if S.shape[0] > 3:
+        return float(np.linalg.det(S))
+    if S.shape[0] == 1:
+        return float(S[0, 0])
+    if S.shape[0] == 2:
+        (a, b), (c, d) = S.tolist()
+        return a * d - b * c
+    (a, b, c), (d, e, f), (g, h, i) = S.tolist()
+    return a * (e * i - f * h) + b * (f * g - d * i) + c * (d * h - e * g)
+
+
 def _hold_F() -> np.ndarray:
     F = np.eye(6)
     F[3:6, 3:6] = 0.0
@@ -73,14 +86,19 @@ def _hold_F() -> np.ndarray:
 _HOLD_F = _hold_F()  # the hold model: position kept, velocity zero (read-only: shared)
 
 
-def _mix(w0: float, a: tuple, w1: float, b: tuple, x: np.ndarray) -> np.ndarray:
-    """w0 (P_a + (x_a - x)(x_a - x)') + w1 (P_b + ...): the moment-matched covariance of two Gaussians about x, with
-    sum()'s arithmetic (0 + first + second) so the same bits."""
-    da, db = a[0] - x, b[0] - x
-    P = w0 * (a[1] + da @ da.T)
-    P += 0
-    P += w1 * (b[1] + db @ db.T)
+def _mix(w0: float, a: tuple, w1: float, b: tuple, D: np.ndarray) -> np.ndarray:
+    """w0 (P_a + (x_a - x)(x_a - x)') + w1 (P_b + ...), x = w0 x_a + w1 x_b, w0 + w1 = 1: the moment-matched
+    covariance of two Gaussians, as w0 P_a + w1 P_b + w0 w1 D with D = (x_a - x_b)(x_a - x_b)' (x_a - x = w1 (x_a -
+    x_b), x_b - x = -w0 (x_a - x_b): one outer product for every mixture of the pair)."""
+    P = w0 * a[1]
+    P += w1 * b[1]
+    P += (w0 * w1) * D
     return P
+
+
+def _spread(a: tuple, b: tuple) -> np.ndarray:
+    d = a[0] - b[0]
+    return d @ d.T
 
 
 def reset_position(kf: KalmanFilter, z, R) -> None:
@@ -159,16 +177,22 @@ class HoldCvFilter:
         M = np.array([[1.0 - p, p], [p, 1.0 - p]])  # M[i, j]: from model i to model j
         c = M.T @ self.mu
         a, b = ((m.x, m.P) for m in self.models)
+        D = _spread(a, b)
+        mu0, mu1 = self.mu.tolist()
         for j, m in enumerate(self.models):
-            w0, w1 = (M[:, j] * self.mu / c[j]).tolist()
-            x0 = w0 * a[0] + w1 * b[0]
-            m.x, m.P = x0, _mix(w0, a, w1, b, x0)
+            w0, w1 = M[0, j] * mu0 / c[j], M[1, j] * mu1 / c[j]
+            m.x, m.P = w0 * a[0] + w1 * b[0], _mix(w0, a, w1, b, D)
         self.mu = c
         hold, cv = self.models
-        Q = np.zeros((6, 6))
-        Q.flat[_D00] = (self.config.hold_speed_mps * dt) ** 2
-        Q.flat[_D11] = 1e-4
-        hold.predict(F=_HOLD_F, Q=Q)
+        # the hold model: position kept (its wander as noise), velocity zero
+        x = hold.x.copy()
+        x[3:6] = 0.0
+        P = hold.P.copy()
+        P[3:6] = 0.0
+        P[:, 3:6] = 0.0
+        P.flat[_D00] += (self.config.hold_speed_mps * dt) ** 2
+        P.flat[_D11] += 1e-4
+        hold.x, hold.P = x, P
         cv.predict(*cv_model(dt, self.accel_sigma_mps2))
         self._combine()
 
@@ -179,8 +203,9 @@ class HoldCvFilter:
             if evidence:  # (a pseudo-measurement's likelihood is not used)
                 y = z - H @ m.x
                 S = H @ m.P @ H.T + R
-                Si = inverse(S)
-                like[j] = float(np.exp(-0.5 * (y.T @ Si @ y).item()) / math.sqrt(max(np.linalg.det(2 * math.pi * S), 1e-300)))
+                Si = small_inverse(S)
+                det = _det(S)
+                like[j] = math.exp(-0.5 * (y.T @ Si @ y).item()) / math.sqrt(max((2 * math.pi) ** S.shape[0] * det, 1e-300))
             m.update(z, R=R, H=H)
         if evidence:
             mu = self.mu * like
@@ -207,4 +232,4 @@ class HoldCvFilter:
         a, b = ((m.x, m.P) for m in self.models)
         mu0, mu1 = self.mu.tolist()
         self.x = mu0 * a[0] + mu1 * b[0]
-        self.P = _mix(mu0, a, mu1, b, self.x)
+        self.P = _mix(mu0, a, mu1, b, _spread(a, b))

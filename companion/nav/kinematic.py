@@ -14,7 +14,8 @@ from companion.events import Event
 from companion.nav.config import NavigatorConfig
 from companion.nav.gnss_lag import GnssLatency
 from companion.nav.hold_cv import CvFilter, HoldCvFilter
-from companion.nav.measurements import Measurement, PositionMeasurement, gate
+from companion.nav.linalg import small_inverse
+from companion.nav.measurements import Measurement, PositionMeasurement
 from companion.nav.outputs import MeasurementUpdate
 
 
@@ -56,9 +57,11 @@ class KinematicFilter:
         x = kf.x.ravel()
         y, H, R = m.compute_kin(x, self.latency.delay_s())
         Rg = m.R_gate()
-        nis, ok = gate(y, H @ kf.P @ H.T + (R if Rg is None else np.maximum(R, Rg)), m.gate_chi2)
-        self._emit(MeasurementUpdate(m.t_s, m.kind, "kinematic", tuple(float(v) for v in y),
-                                     tuple(float(v) for v in np.sqrt(np.diag(R))), nis, m.gate_chi2, ok))
+        S = H @ kf.P @ H.T + (R if Rg is None else np.maximum(R, Rg))
+        nis = float(y @ small_inverse(S) @ y)
+        ok = nis <= m.gate_chi2
+        self._emit(MeasurementUpdate(m.t_s, m.kind, "kinematic", tuple(y.tolist()),
+                                     tuple(np.sqrt(R.diagonal()).tolist()), nis, m.gate_chi2, ok))
         if ok:
             # a measurement of the vehicle is evidence for a motion model; a pseudo-measurement is not
             kf.update((y + H @ x).reshape(-1, 1), R=R, H=H, evidence=m.kind in ("gnss_pos", "position_fix"))

@@ -7,6 +7,7 @@ tests check H against their numerical Jacobian). One gate, :func:`gate`, on the 
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -131,10 +132,17 @@ class PositionMeasurement(Measurement):
         return x[0:3] - x[3:6] * delay_s  # the fix describes the vehicle at t - delay
 
     def H_kin(self, delay_s):
-        H = np.zeros((3, 6))
-        H[:, 0:3] = np.eye(3)
-        H[:, 3:6] = -delay_s * np.eye(3)
-        return H
+        return _h_kin_position(delay_s)
+
+
+@functools.lru_cache(maxsize=32)
+def _h_kin_position(delay_s: float) -> np.ndarray:
+    """[I, -delay I]: a fix describes the vehicle at t - delay (read-only: cached per delay)."""
+    H = np.zeros((3, 6))
+    H[:, 0:3] = np.eye(3)
+    H[:, 3:6] = -delay_s * np.eye(3)
+    H.flags.writeable = False
+    return H
 
 
 @dataclass(frozen=True)

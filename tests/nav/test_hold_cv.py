@@ -206,9 +206,10 @@ class _ReferenceImm:
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_imm_equals_the_textbook_formulation_bit_for_bit(seed):
+def test_imm_equals_the_textbook_formulation(seed):
     """Mixed steps (uneven dt, fixes as evidence, pseudo-measurements that are not, a delayed-fix Jacobian with -0.0
-    entries): every state and covariance identical in every bit."""
+    entries): every state, covariance and mode probability equal to the textbook's to 1e-12 over 400 steps (the
+    mixture's spread as one outer product and the closed-form small inverse change the rounding, nothing else)."""
     rng = np.random.default_rng(seed)
     x0, P0 = np.r_[rng.normal(0, 5, 3), rng.normal(0, 1, 3)], np.diag([9.0, 9.0, 25.0, 4.0, 4.0, 4.0])
     a, b = HoldCvFilter(x0, P0, 2.0), _ReferenceImm(x0, P0, 2.0)
@@ -223,4 +224,5 @@ def test_imm_equals_the_textbook_formulation_bit_for_bit(seed):
         Hk = Hd if k % 3 == 0 else H
         a.update(z, R, Hk, evidence=evidence)
         b.update(z, R, Hk, evidence=evidence)
-        assert a.x.tobytes() == b.x.tobytes() and a.P.tobytes() == b.P.tobytes() and a.mu.tobytes() == b.mu.tobytes()
+        for u, w in ((a.x, b.x), (a.P, b.P), (a.mu, b.mu)):
+            np.testing.assert_allclose(u, w, rtol=1e-12, atol=1e-12 * np.abs(w).max())
