@@ -6,7 +6,8 @@ of filterpy's ``KalmanFilter`` (the reference the suite checks it against, to ro
 inverted in closed form (companion.nav.linalg.small_inverse). When H picks consecutive states (``cols``: H is the
 identity's rows ``cols``, as for a position, a velocity or an attitude), P H' is a slice of P and the Joseph form
 ``(I - K H) P (I - K H)' + K R K'`` is ``A - (A H' - K R) K'`` with ``A = P - K (H P)``: O(n^2 m) instead of
-O(n^3), and fewer numpy calls (tests/nav/test_kalman.py: equal to the dense form to 1e-12).
+O(n^3), and fewer numpy calls (tests/nav/test_kalman.py: equal to the dense form to 1e-12; what it bought:
+docs/decisions/0015-filter-update-numpy-calls.md).
 """
 
 from __future__ import annotations
