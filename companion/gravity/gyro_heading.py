@@ -80,14 +80,35 @@ class GyroHeading:
         self.frozen_t: float | None = None
         self.gaps = 0  # gyro gaps longer than max_gap_s
         self.unlevelled = 0  # gyro samples without a recent roll/pitch
+        self._prev_att: tuple[float, float, float] | None = None
+        self._pending: deque[tuple[float, tuple]] = deque()  # gyro samples newer than the last attitude
 
     # -- inputs ------------------------------------------------------------------------------------
     def gyro(self, t_s: float, gyro_frd_radps) -> None:
+        """A gyro sample: integrated once an attitude at or after its time has arrived (roll and pitch interpolated to
+        its time: in turbulence q and roll are correlated, and a roll held from up to one ATTITUDE period earlier
+        rectifies q sin(roll) into a drift of tens of deg/h); until then it waits, at most ``max_att_age_s``."""
+        self._pending.append((float(t_s), tuple(gyro_frd_radps)))
         a = self._att
-        if a is None or abs(t_s - a[0]) > self.cfg.max_att_age_s:
+        while self._pending and (a is None or self._pending[0][0] < a[0] - self.cfg.max_att_age_s
+                                 or t_s - self._pending[0][0] > self.cfg.max_att_age_s):
+            self._integrate(*self._pending.popleft())  # no attitude around it: levelled by the last (or counted)
+
+    def _levelled(self, t_s: float) -> tuple[float, float] | None:
+        a, p = self._att, self._prev_att
+        if a is None or abs(t_s - a[0]) > self.cfg.max_att_age_s and (p is None or abs(t_s - p[0]) > self.cfg.max_att_age_s):
+            return None
+        if p is not None and p[0] <= t_s <= a[0] and a[0] > p[0]:
+            w = (t_s - p[0]) / (a[0] - p[0])
+            return p[1] + w * wrap_pi(a[1] - p[1]), p[2] + w * (a[2] - p[2])
+        return a[1], a[2]
+
+    def _integrate(self, t_s: float, gyro_frd_radps) -> None:
+        lv = self._levelled(t_s)
+        if lv is None:
             self.unlevelled += 1
             return
-        rate = heading_rate_radps(gyro_frd_radps, a[1], a[2])
+        rate = heading_rate_radps(gyro_frd_radps, lv[0], lv[1])
         if not math.isfinite(rate):
             return
         if self._t is not None:
@@ -100,7 +121,9 @@ class GyroHeading:
         self._t, self._rate = float(t_s), rate
 
     def attitude(self, t_s: float, roll_rad: float, pitch_rad: float, yaw_rad: float, learn: bool) -> None:
-        self._att = (float(t_s), float(roll_rad), float(pitch_rad))
+        self._prev_att, self._att = self._att, (float(t_s), float(roll_rad), float(pitch_rad))
+        while self._pending and self._pending[0][0] <= t_s:
+            self._integrate(*self._pending.popleft())
         if learn and self.frozen_t is None and self._t is not None and abs(t_s - self._t) <= self.cfg.max_gap_s:
             self._learn(float(t_s), self.integral_at(t_s) - float(yaw_rad))
 
