@@ -6,7 +6,8 @@ rates levelled by the autopilot's roll and pitch (ZYX Euler kinematics):
 
     psi' = (q sin(roll) + r cos(roll)) / cos(pitch)
 
-integrated (trapezoid) into ``I(t)``. While GNSS is good, ``d(t) = I(t) - yaw(t)`` (yaw: ATTITUDE, unwrapped) is
+with roll and pitch interpolated to each gyro sample's time (a sample waits for the next ATTITUDE), integrated
+(trapezoid) into ``I(t)``. While GNSS is good, ``d(t) = I(t) - yaw(t)`` (yaw: ATTITUDE, unwrapped) is
 fitted by a line ``a + b t`` over the last ``window_s``: ``b`` is the z-gyro bias (plus the earth rate's vertical
 part), ``a`` the alignment. The heading is ``I(t) - (a + b t)``. At a GNSS loss the fit is frozen (``freeze``):
 nothing from the yaw in the outage reaches the heading; the fit resumes when GNSS is back (``thaw``).

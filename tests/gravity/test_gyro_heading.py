@@ -126,3 +126,20 @@ def test_thaw_resumes_learning_and_no_heading_before_the_fit():
     gh.thaw()
     gh.attitude(61.0, 0.0, 0.0, 1.0, learn=True)
     assert gh.line() != pytest.approx((0.0, 0.001))
+
+
+def test_roll_is_taken_at_the_gyro_time_not_held():
+    """Turbulence rolling the wings (10 deg at 0.3 Hz) with a pitch rate in phase with the roll rate, the true heading
+    constant: q sin(roll) averages to zero only with the roll at each gyro sample's time. Held from the last 10 Hz
+    attitude (50 ms late on average) it would average to about 290 deg/h; interpolated, 10 min stay within 0.2 deg."""
+    gh = GyroHeading()
+    w, amp_roll, amp_q = 2 * math.pi * 0.3, math.radians(10.0), math.radians(10.0)
+    for k in range(int(600.0 / DT_S) + 1):
+        t = k * DT_S
+        roll = amp_roll * math.sin(w * t)
+        q = amp_q * math.cos(w * t)
+        if k % 5 == 0:  # ATTITUDE at 5 Hz, stamped at its own time
+            gh.attitude(t, roll, 0.0, 0.0, learn=False)
+        gh.gyro(t, (amp_roll * w * math.cos(w * t), q, -q * math.tan(roll)))
+    assert gh.unlevelled == 0
+    assert abs(math.degrees(gh.integral_at(600.0))) < 0.2
