@@ -6,7 +6,9 @@ own GPS_INPUT in the GNSS denial against SITL's truth: settings compared on the 
     python -m replay.live.sitl_gravity_rerun out/plane_ak_s1/companion --map GRID.nc --set gravity.seq_accel_bias_ug=2000
 
 Prints the companion's error / stated h_acc / fix type every 5 min of the denial, its mean error and the share of its
-3D fixes within 2x their h_acc.
+3D fixes within 2x their h_acc. ``--truth-heading``, ``--truth-wind``, ``--perfect-gravimeter`` put SITL's truth in
+place of one input (replay.live.sitl_gravity_truth: what limits the error); ``--trace`` prints the filter's wind,
+heading and position error estimates beside the true ones.
 """
 
 from __future__ import annotations
@@ -64,17 +66,52 @@ class _Keep:
         pass
 
 
-def rerun(arm_dir: Path, sets: list[str]) -> dict:
-    """The companion's own figures in the denial with ``sets`` (section.key=value, as ``companion run --set``)."""
+def recorded_tas(events) -> tuple[np.ndarray, np.ndarray]:
+    """(t_s, TAS m/s) of the recorded airspeeds as the air-data stage turns them into true airspeed."""
+    from companion.gravity.air_data import tas_from_eas_mps
+
+    alt, out = None, []
+    for e in events:
+        if isinstance(e, ev.AutopilotAltitude) and math.isfinite(e.alt_msl_m):
+            alt = float(e.alt_msl_m)
+        elif isinstance(e, ev.AirData) and alt is not None:
+            out.append((e.t_s, tas_from_eas_mps(e.airspeed_mps, alt)))
+    a = np.asarray(out, float).reshape(-1, 2)
+    return a[:, 0], a[:, 1]
+
+
+def rerun(arm_dir: Path, sets: list[str], *, truth_heading: bool = False, truth_wind: bool = False,
+          perfect_gravimeter: bool = False, wind_window_s: float = 60.0, trace: bool = False,
+          filter_seed: int | None = None) -> dict:
+    """The companion's own figures in the denial with ``sets`` (section.key=value, as ``companion run --set``) and
+    SITL's truth in place of the inputs asked for (replay.live.sitl_gravity_truth); ``trace``: its filter's estimates
+    beside the truth's (``FilterTrace``, under "trace"); ``filter_seed``: the particle filter's draws (the stage's own
+    seed otherwise)."""
     from companion.gravity.stage import live_gravity_stage
+    from companion.sim.truth_gravimeter import GravimeterSpec
+    from replay.live import sitl_gravity_truth as tru
 
     log = core.FlightLog.from_dict(json.loads((arm_dir / "log.json").read_text()))
     cfg = load_config(None, dict(parse_override(s) for s in ['link.connect="tcp:127.0.0.1:1"', 'inject.mode="shadow"', *sets]))
     sink = _Keep()
     stage = live_gravity_stage(cfg.gravity)
+    if filter_seed is not None:
+        from companion.gravity.sequential import SequentialGravityFilter
+
+        stage.filter = SequentialGravityFilter(stage.lmap, stage.cfg, np.random.default_rng(filter_seed))
+    events = list(recorded_inputs(arm_dir / "companion.mcap"))
+    track = tru.TruthTrack(log.truth, log.truth_yaw) if (truth_heading or truth_wind or perfect_gravimeter or trace) else None
+    wind = tru.TruthWind(track, *recorded_tas(events), window_s=wind_window_s) if (truth_wind or trace) else None
+    if truth_heading or truth_wind:
+        stage.dr = tru.TruthReckoner(stage.dr.cfg, yaw=track if truth_heading else None,
+                                     wind=wind if truth_wind else None)
+    tracer = tru.FilterTrace(stage, track, wind) if trace else None
     pipe = build_pipeline(sink, nav_config=cfg.nav_config(),
                           extra_stages=[stage, Injector(cfg.inject, trust=cfg.trust)])
-    for e in recorded_inputs(arm_dir / "companion.mcap"):
+    window_s = GravimeterSpec().window_s
+    for e in events:
+        if perfect_gravimeter and isinstance(e, ev.GravityReading):
+            e = dataclasses.replace(e, gravity_mgal=tru.perfect_reading_mgal(track, stage.lmap, e.t_s, window_s))
         pipe.process(e)
     pipe.finish()
     on, off = log.marks["deny_on"], log.marks["deny_off"]
@@ -90,7 +127,8 @@ def rerun(arm_dir: Path, sets: list[str]) -> dict:
     return {"marks": marks, "mean_m": float(err[den].mean()) if den.any() else math.nan,
             "mean_3d_m": float(err[d3].mean()) if d3.any() else math.nan,
             "share_3d": float(d3.sum() / max(1, den.sum())),
-            "within_2hacc": float(np.mean(err[d3] <= 2 * hacc[d3])) if d3.any() else math.nan}
+            "within_2hacc": float(np.mean(err[d3] <= 2 * hacc[d3])) if d3.any() else math.nan,
+            "trace": tracer, "deny_on_s": on}
 
 
 def _dcm(roll: float, pitch: float, yaw: float) -> np.ndarray:
@@ -142,6 +180,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--vehicle", choices=tuple(VEHICLE_SETS), default="plane")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="on top of the run's companion settings (replay.live.sitl_gravity.COMPANION_SETS)")
+    p.add_argument("--truth-heading", action="store_true", help="the reference's heading = SIMSTATE yaw")
+    p.add_argument("--truth-wind", action="store_true", help="the held wind replaced by the true wind at each step")
+    p.add_argument("--truth-wind-window-s", type=float, default=60.0, help="the true wind's averaging window")
+    p.add_argument("--perfect-gravimeter", action="store_true",
+                   help="readings = the map at the true positions (+ the true Eotvos term), no misfit, bias or noise")
+    p.add_argument("--filter-seed", type=int, default=None, help="the particle filter's seed (the stage's own: 0)")
+    p.add_argument("--trace", action="store_true",
+                   help="the filter's wind/heading/position error estimates beside the truth, every 2.5 min")
     p.add_argument("--imu-check", metavar="T0,T1", help="only the IMU/attitude/GNSS consistency over boot seconds T0..T1")
     a = p.parse_args(argv)
     arm = Path(a.dir)
@@ -156,12 +202,17 @@ def main(argv: list[str] | None = None) -> int:
         print(f"no companion.mcap and log.json in {arm}", file=sys.stderr)
         return 2
     sets = COMPANION_SETS + VEHICLE_SETS[a.vehicle] + [f"gravity.map={json.dumps(str(Path(a.map).resolve()))}"] + a.set
-    r = rerun(arm, sets)
-    print(f"settings: --set {' --set '.join(a.set) or '(the run s own)'}")
+    r = rerun(arm, sets, truth_heading=a.truth_heading, truth_wind=a.truth_wind, perfect_gravimeter=a.perfect_gravimeter,
+              wind_window_s=a.truth_wind_window_s, trace=a.trace, filter_seed=a.filter_seed)
+    truth = [n for n, on in (("heading", a.truth_heading), ("wind", a.truth_wind), ("gravimeter", a.perfect_gravimeter))
+             if on]
+    print(f"settings: --set {' --set '.join(a.set) or '(the run s own)'}; truth for: {', '.join(truth) or 'nothing'}")
     print("  error / h_acc / fix every 5 min: " + "  ".join(
         f"{k}: {v[0]:.0f}/{v[1]:.0f}/{v[2]}" if v else f"{k}: -" for k, v in r["marks"].items()))
     print(f"  mean {r['mean_m']:.0f} m (3D fixes {r['mean_3d_m']:.0f} m, {r['share_3d']:.0%} of the denial's "
           f"GPS_INPUT); within 2x h_acc {r['within_2hacc']:.0%}")
+    if r["trace"] is not None:
+        print("\n".join(r["trace"].lines(r["deny_on_s"], np.arange(2.5, 60.1, 2.5))))
     return 0
 
 
