@@ -187,7 +187,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="readings = the map at the true positions (+ the true Eotvos term), no misfit, bias or noise")
     p.add_argument("--filter-seed", type=int, default=None, help="the particle filter's seed (the stage's own: 0)")
     p.add_argument("--trace", action="store_true",
-                   help="the filter's wind/heading/position error estimates beside the truth, every 2.5 min")
+                   help="the filter's wind/heading/position error estimates beside the truth, every --trace-step-min")
+    p.add_argument("--trace-step-min", type=float, default=2.5)
     p.add_argument("--imu-check", metavar="T0,T1", help="only the IMU/attitude/GNSS consistency over boot seconds T0..T1")
     a = p.parse_args(argv)
     arm = Path(a.dir)
@@ -212,7 +213,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  mean {r['mean_m']:.0f} m (3D fixes {r['mean_3d_m']:.0f} m, {r['share_3d']:.0%} of the denial's "
           f"GPS_INPUT); within 2x h_acc {r['within_2hacc']:.0%}")
     if r["trace"] is not None:
-        print("\n".join(r["trace"].lines(r["deny_on_s"], np.arange(2.5, 60.1, 2.5))))
+        print("\n".join(r["trace"].lines(r["deny_on_s"], np.arange(a.trace_step_min, 60.01, a.trace_step_min))))
     return 0
 
 

@@ -170,16 +170,22 @@ class FilterTrace:
                           "wind_sigma_ne_mps": vsig, "heading_err_rad": head_err, "heading_est_rad": head_est,
                           "heading_sigma_rad": head_sig, "status": e.status, "nis_mean": float(e.nis_mean),
                           "reinit_count": int(e.reinit_count), "bimodality": float(e.bimodality),
-                          "signal_ratio": float(e.signal_ratio)})
+                          "signal_ratio": float(e.signal_ratio),
+                          "nis": float(st.filter._nis[-1][1]) if st.filter._nis else math.nan})
 
     def lines(self, on_s: float, minutes) -> list[str]:
-        """One line per minute mark after ``on_s``: the reading nearest to it (within 5 s)."""
+        """One line per minute mark after ``on_s``: the reading nearest to it (within 5 s), and the mean normalised
+        innovation of the readings since the previous mark."""
         if not self.rows:
             return ["  (no readings on the filter's own)"]
         t = np.array([r["t_s"] for r in self.rows])
         out = ["  min | own err / h_acc (m) | ref err: true / est (m) | wind err N,E: true / est +- sigma (m/s) | "
-               "heading err: true / est +- sigma (deg) | status"]
+               "heading err: true / est +- sigma (deg) | status | NIS"]
+        nis = np.array([r.get("nis", math.nan) for r in self.rows])
+        prev = on_s
         for m in minutes:
+            since = (t > prev) & (t <= on_s + 60.0 * m)
+            prev = on_s + 60.0 * m
             i = int(np.argmin(np.abs(t - on_s - 60.0 * m)))
             if abs(t[i] - on_s - 60.0 * m) > 5.0:
                 continue
@@ -190,5 +196,5 @@ class FilterTrace:
                        f"{np.hypot(*r['est_err_ne_m']):6.0f} | {we[0]:+5.2f},{we[1]:+5.2f} / {wm[0]:+5.2f},{wm[1]:+5.2f} "
                        f"+- {ws[0]:.2f},{ws[1]:.2f} | {math.degrees(r['heading_err_rad']):+5.1f} / "
                        f"{math.degrees(r['heading_est_rad']):+5.1f} +- {math.degrees(r['heading_sigma_rad']):.1f} | "
-                       f"{r['status']}")
+                       f"{r['status']} | {np.nanmean(nis[since]) if since.any() else math.nan:.3f}")
         return out

@@ -113,3 +113,38 @@ def test_a_perfect_reading_is_the_mean_map_over_its_window_plus_the_true_eotvos_
     assert tru.perfect_reading_mgal(track, lmap, 90.0, window_s=30.0) == pytest.approx(want, abs=0.01)
     assert float(eotvos_from_ne_mgal(np.array([0.0, TAS_MPS]), LAT0_DEG)) > 50.0  # the Eotvos term is in it
     assert math.isnan(tru.perfect_reading_mgal(track, lmap, 10.0, window_s=30.0))  # no truth before its window
+
+
+def test_the_filter_trace_puts_the_estimates_beside_the_truth_and_skips_anchored_readings():
+    from types import SimpleNamespace
+
+    t, lat, lon, yaw = _flight(duration_s=400.0)
+    track = _track(t, lat, lon, yaw)
+    wind = tru.TruthWind(track, t, np.full(t.size, TAS_MPS), window_s=60.0)
+    lmap = SimpleNamespace(xy_to_ne=lambda x, y: (np.asarray(y) * 1e5, np.asarray(x) * 1e5))  # any map frame
+    nis = []
+
+    def feed(t_s, g, ref, vel, sigma, **kw):
+        nis.append((t_s, 0.5))
+        return SimpleNamespace(err_ne_m=np.array([30.0, -40.0]), h_acc_m=100.0, vel_err_ne_mps=np.array([0.5, 0.0]),
+                               vel_cov_ne_m2ps2=np.eye(2) * 0.04, status="ok", nis_mean=0.5, reinit_count=0,
+                               bimodality=0.3, signal_ratio=2.0)
+
+    stage = SimpleNamespace(lmap=lmap, filter=SimpleNamespace(feed=feed, _nis=nis, be=None),
+                            dr=SimpleNamespace(wind_held=np.array([4.0, -4.0]), _yaw=(200.0, float(track.yaw_rad(200.0)) + 0.1)),
+                            cfg=SimpleNamespace(ins=SimpleNamespace(air_heading=False)))
+    tr = tru.FilterTrace(stage, track, wind)
+    la, lo = track.lat_lon_deg(200.0)
+    truth_ne = np.array([float(la) * 1e5, float(lo) * 1e5])
+    stage.filter.feed(100.0, 1.0, truth_ne, np.zeros(2), 1.0, anchor=True)  # pinned to GNSS: not traced
+    stage.filter.feed(200.0, 1.0, truth_ne + np.array([50.0, -30.0]), np.zeros(2), 1.0, anchor=False)
+    assert len(tr.rows) == 1
+    r = tr.rows[0]
+    assert r["ref_err_ne_m"] == pytest.approx([50.0, -30.0], abs=1e-6)  # reference - truth
+    assert r["wind_err_ne_mps"] == pytest.approx(np.array([4.0, -4.0]) - wind.at(200.0))  # held - true
+    assert r["wind_err_ne_mps"] == pytest.approx([1.0, 0.0], abs=0.05)
+    assert r["heading_err_rad"] == pytest.approx(0.1, abs=1e-9)
+    lines = tr.lines(100.0, [100.0 / 60.0])
+    assert len(lines) == 2 and "| ok | 0.500" in lines[1]
+    own = math.hypot(30.0 - 50.0, -40.0 + 30.0)  # the filter's position error: estimated minus true reference error
+    assert f"{own:6.0f} /   100" in lines[1]
