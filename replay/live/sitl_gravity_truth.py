@@ -22,8 +22,7 @@ import math
 
 import numpy as np
 
-from companion.constants import WGS84_A_M
-from companion.gravity.air_data import WGS84_E2, AirDataReckoner
+from companion.gravity.air_data import AirDataReckoner, radii_m
 from companion.gravity.eotvos import eotvos_from_ne_mgal
 
 
@@ -54,9 +53,7 @@ class TruthTrack:
         la0, lo0 = self.lat_lon_deg(t0_s)
         la1, lo1 = self.lat_lon_deg(t1_s)
         mid = 0.5 * (la0 + la1)
-        s2 = np.sin(np.radians(mid)) ** 2
-        w = np.sqrt(1.0 - WGS84_E2 * s2)
-        rm, rn = WGS84_A_M * (1.0 - WGS84_E2) / w**3, WGS84_A_M / w
+        rm, rn = np.vectorize(radii_m)(mid)
         return np.stack([np.radians(la1 - la0) * rm, np.radians(lo1 - lo0) * rn * np.cos(np.radians(mid))], -1)
 
     def lat_lon_deg(self, t_s) -> tuple[np.ndarray, np.ndarray]:
@@ -83,9 +80,9 @@ class TruthWind:
             raise ValueError("the kept log has no SIMSTATE yaw")
         y = np.interp(fine, track.yaw_t_s, yaw)
         v = np.interp(fine, ts, tas)
+        air_ne = np.stack([v * np.cos(y), v * np.sin(y)], 1)
         cum = np.zeros((len(fine), 2))
-        cum[1:] = np.cumsum(0.5 * (np.stack([v * np.cos(y), v * np.sin(y)], 1)[1:]
-                                   + np.stack([v * np.cos(y), v * np.sin(y)], 1)[:-1]) * 0.1, axis=0)
+        cum[1:] = np.cumsum(0.5 * (air_ne[1:] + air_ne[:-1]) * 0.1, axis=0)
         h = 0.5 * window_s
         self.t_s = np.arange(t0 + h, t1 - h, step_s)
         a = np.stack([np.interp(self.t_s + h, fine, cum[:, k]) - np.interp(self.t_s - h, fine, cum[:, k])
