@@ -133,6 +133,9 @@ class GravityConfig:
     # in a GNSS outage the stage's own state replaces the navigator's towards the injector, nothing goes back)
     reference: str = "navigator"
     air_wind_window_s: float = 300.0  # the wind held at a GNSS loss: the mean over this long before it
+    # the velocity its states carry is low-passed over this long (s; 0: raw): the air velocity's pitot noise and gusts
+    # step it several m/s between states otherwise (docs/decisions/0016-air-data-velocity.md)
+    air_output_tau_s: float = 1.0
     # the reference's heading: "attitude" (ATTITUDE yaw: EKF3's, which the fixes sent can turn), "magnetometer" (the
     # compass in RAW_IMU levelled by ATTITUDE roll/pitch, plus its offset to ATTITUDE yaw learnt while GNSS is good) or
     # "gyro" (RAW_IMU's gyro integrated, levelled by ATTITUDE roll/pitch, its bias learnt while GNSS is good)
@@ -222,7 +225,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "gravity.seq_init_vel_sigma_mps": (1e-4, 100.0), "gravity.seq_noise_corr_s": (0.0, 3600.0),
     "gravity.seq_min_gain": (0.0, 0.99), "gravity.seq_wind_walk_mps_rts": (0.0, 10.0),
     "gravity.air_gyro_window_s": (120.0, 7200.0), "gravity.air_gyro_bias_walk_degph_rth": (0.0, 1000.0),
-    "gravity.air_gyro_arw_deg_rth": (0.0, 100.0),
+    "gravity.air_gyro_arw_deg_rth": (0.0, 100.0), "gravity.air_output_tau_s": (0.0, 60.0),
     "gravity.reading_delay_s": (0.0, 600.0),
     "navigator.imu_index": (0, 3), "navigator.gnss_instance": (0, 1), "navigator.gnss_delay_s": (0.0, 1.0),
     "navigator.gnss_vel_delay_s": (0.0, 1.0),

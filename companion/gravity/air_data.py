@@ -10,6 +10,11 @@ as a random walk (companion.gravity.sequential.InsErrorSpec.air_data). While GNS
 receiver's; after the loss it is integrated on the ellipsoid (WGS84 radii of curvature) from the last fix. Inputs are
 the autopilot's raw air data (VFR_HUD airspeed, its equivalent airspeed turned into true airspeed at the altitude by
 the ISA atmosphere) and heading (ATTITUDE yaw): never the companion's own output. Pure: vehicle time only.
+
+The velocity it states (``output_velocity``) is that velocity through a first-order low-pass of ``output_tau_s``: the
+air velocity carries the pitot's noise and the gusts sample by sample, so unfiltered it steps several m/s between
+states where the vehicle's own velocity does not (docs/decisions/0016); the position is integrated from the unfiltered
+velocity (the noise averages out there, a lag would not).
 """
 
 from __future__ import annotations
@@ -73,16 +78,40 @@ class HeadingOffset:
         return math.atan2(self._sum[1], self._sum[0]) if len(self._d) >= 10 else None
 
 
+class LowPass:
+    """First-order low-pass dy/dt = (x - y) / tau on irregular samples, exact for x held over each step:
+    y += (1 - exp(-dt / tau)) (x - y). tau = 0 passes x through; a step back in time restarts it at x."""
+
+    def __init__(self, tau_s: float) -> None:
+        if not tau_s >= 0:
+            raise ValueError("a low-pass time constant must be >= 0")
+        self.tau_s = float(tau_s)
+        self.t: float | None = None
+        self.y: np.ndarray | None = None
+
+    def update(self, t_s: float, x) -> np.ndarray:
+        x = np.asarray(x, float)
+        if self.y is None or self.t is None or self.tau_s == 0 or t_s < self.t:
+            self.y = x.copy()
+        else:
+            self.y = self.y + (1.0 - math.exp(-(t_s - self.t) / self.tau_s)) * (x - self.y)
+        self.t = float(t_s)
+        return self.y.copy()
+
+
 @dataclass(frozen=True)
 class AirDataConfig:
     wind_window_s: float = 300.0  # the wind held at the loss: the mean of GNSS minus air velocity over this long
     air_max_age_s: float = 1.0  # an airspeed or heading older than this is not used (the last velocity is kept)
     min_airspeed_mps: float = 5.0  # below: not flying on the wing, no air velocity (nor wind sample)
     history_s: float = 120.0  # the reference is kept this far back (a reading describes a past position)
+    output_tau_s: float = 1.0  # the stated velocity's low-pass (module doc; docs/decisions/0016)
 
     def __post_init__(self) -> None:
         if not (self.wind_window_s > 0 and self.air_max_age_s > 0 and self.history_s > 0 and self.min_airspeed_mps >= 0):
             raise ValueError("air-data windows and ages must be > 0")
+        if not self.output_tau_s >= 0:
+            raise ValueError("output_tau_s must be >= 0")
 
 
 class AirDataReckoner:
@@ -101,7 +130,8 @@ class AirDataReckoner:
         self.t: float | None = None
         self.lat = self.lon = math.nan
         self.vel = np.zeros(2)
-        self.hist: deque[tuple[float, float, float, float, float]] = deque()
+        self._out = LowPass(self.cfg.output_tau_s)
+        self.hist: deque[tuple[float, ...]] = deque()  # t, lat, lon, v_n, v_e, low-passed v_n, v_e
         self.stale_steps = 0  # dead-reckoning steps without a recent air velocity (the last velocity kept)
 
     # -- inputs ------------------------------------------------------------------------------------
@@ -206,12 +236,22 @@ class AirDataReckoner:
 
     def _set(self, t_s: float, lat: float, lon: float, v: np.ndarray) -> None:
         self.t, self.lat, self.lon, self.vel = float(t_s), lat, lon, np.asarray(v, float).copy()
-        self.hist.append((self.t, lat, lon, float(v[0]), float(v[1])))
+        o = self._out.update(self.t, self.vel)
+        self.hist.append((self.t, lat, lon, float(v[0]), float(v[1]), float(o[0]), float(o[1])))
         while self.hist and self.hist[0][0] < self.t - self.cfg.history_s:
             self.hist.popleft()
 
     def at(self, t_s: float) -> tuple[float, float, float, float] | None:
         """(lat, lon, v_n, v_e) of the reference at t_s, linear between kept states; None outside the history."""
+        r = self._interp(t_s)
+        return None if r is None else r[:4]  # type: ignore[return-value]
+
+    def output_velocity(self, t_s: float) -> np.ndarray | None:
+        """The stated (low-passed) velocity N, E at t_s, linear between kept states; None outside the history."""
+        r = self._interp(t_s)
+        return None if r is None else np.array(r[4:6])
+
+    def _interp(self, t_s: float) -> tuple[float, ...] | None:
         h = self.hist
         if not h or t_s < h[0][0] or t_s > h[-1][0]:
             return None
@@ -224,4 +264,4 @@ class AirDataReckoner:
                 hi = mid
         a, b = h[lo], h[hi]
         w = 0.0 if b[0] <= a[0] else (t_s - a[0]) / (b[0] - a[0])
-        return tuple(a[i] + w * (b[i] - a[i]) for i in range(1, 5))  # type: ignore[return-value]
+        return tuple(a[i] + w * (b[i] - a[i]) for i in range(1, 7))

@@ -9,7 +9,8 @@ GNSS period (companion.gravity.air_data). The sequential filter (companion.gravi
 estimates that reference's position error and the held wind's error from every gravimeter reading; while GNSS is good
 it is pinned to the receiver and learns the map misfit. In an outage, once the filter has estimated on its own, each
 navigator state is replaced by this stage's (the navigator's own is withheld from the stages after it): position and
-horizontal velocity corrected by the filter, covariance from the filter, altitude the autopilot's, ``measurement``
+horizontal velocity (low-passed: AirDataReckoner.output_velocity) corrected by the filter, both at the state's own
+time, covariance from the filter, altitude the autopilot's, ``measurement``
 ``gravity_airdata`` while the filter's covariance stands (AIDED: an aid the autopilot lacks: companion.inject.gps_input's
 ``outage_aids``), else ``airdata``. Nothing goes back to the navigator.
 
@@ -279,7 +280,12 @@ class AirDataGravityStage(Stage):
         e = self._est
         if e is None or not self._receiver_out(s.t_s) or self.dr.t is None or not self.dr.advance(s.t_s):
             return out
-        lat, lon, vn, ve = self.dr.lat, self.dr.lon, float(self.dr.vel[0]), float(self.dr.vel[1])
+        # at the state's own time: a reading stamped after it may already have carried the reckoning further
+        ref, v_out = self.dr.at(s.t_s), self.dr.output_velocity(s.t_s)
+        if ref is None or v_out is None:
+            return out
+        lat, lon = ref[0], ref[1]
+        vn, ve = float(v_out[0]), float(v_out[1])
         ne, _ = self._map_state(lat, lon, vn, ve)
         dt = max(s.t_s - e.t_s, 0.0)
         dv = e.vel_err_ne_mps if e.vel_err_ne_mps is not None else np.zeros(2)

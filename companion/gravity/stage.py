@@ -358,7 +358,8 @@ def live_gravity_stage(config) -> Stage:
         from companion.gravity.gyro_heading import GYRO_SOURCES, GyroHeadingConfig
         from companion.gravity.sequential_stage import seq_config_of
 
-        return AirDataGravityStage(lmap, seq_config_of(config), AirDataConfig(wind_window_s=config.air_wind_window_s),
+        air = AirDataConfig(wind_window_s=config.air_wind_window_s, output_tau_s=config.air_output_tau_s)
+        return AirDataGravityStage(lmap, seq_config_of(config), air,
                                    sigma_mgal=config.sigma_mgal, reading_delay_s=config.reading_delay_s,
                                    source=f"gravity:{config.named_value}:air_data",
                                    speed_sigma_floor_mps=config.air_speed_sigma_floor_mps,

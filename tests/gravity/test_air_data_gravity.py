@@ -6,13 +6,15 @@ well below the held-wind dead reckoning's error and be honest about it."""
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
 import pytest
 
 from companion.events import AirData, Attitude, AutopilotAltitude, GnssFix, GravityReading, ImuSample, MagField
-from companion.gravity.air_data import AirDataConfig, AirDataReckoner, mag_heading_rad, radii_m, tas_from_eas_mps
+from companion.gravity.air_data import (AirDataConfig, AirDataReckoner, LowPass, mag_heading_rad, radii_m,
+                                        tas_from_eas_mps)
 from companion.gravity.air_data_stage import AID, AirDataGravityStage, AirDataState
 from companion.gravity.data import AK_GULF, shared_gravity_dir
 from companion.gravity.maps import LocalGravityMap, load_grid
@@ -62,6 +64,58 @@ def test_gust_stats_with_repeated_time_stamps():
     assert 0.0 < sig_avg < 0.5 * 0.5  # white 0.5 m/s averaged over 30 s (150 samples): ~0.04
     assert dr.gust_stats(0.0)[0] == pytest.approx(0.5, rel=0.1)
     assert walk > 0.0
+
+
+def test_low_pass_step_response():
+    lp = LowPass(2.0)
+    assert np.allclose(lp.update(0.0, [1.0, -2.0]), [1.0, -2.0])  # starts at its first input
+    lp.update(0.5, [0.0, 0.0])  # irregular steps: exact for a held input whatever their sizes
+    lp.update(0.6, [0.0, 0.0])
+    assert np.allclose(lp.update(2.0, [0.0, 0.0]), np.exp(-1.0) * np.array([1.0, -2.0]))
+    assert np.allclose(lp.update(1.0, [5.0, 5.0]), [5.0, 5.0])  # a step back in time restarts it
+    assert np.allclose(LowPass(0.0).update(3.0, [7.0, 1.0]), [7.0, 1.0])
+    with pytest.raises(ValueError):
+        LowPass(-1.0)
+
+
+def _reckon_turning(tau_s: float, noise_mps: float, seed: int = 0):
+    """Dead reckoning through a steady turn (air 22 m/s, 3 deg/s, no wind), the airspeed and heading noisy at 10 Hz:
+    (times, true velocity, raw velocity, stated velocity) over the outage."""
+    rng = np.random.default_rng(seed)
+    dr = AirDataReckoner(AirDataConfig(wind_window_s=30.0, output_tau_s=tau_s))
+    rate = math.radians(3.0)
+    rows = []
+    for k in range(1200):
+        t = 0.1 * k
+        yaw = rate * t
+        v_true = TAS_MPS * np.array([math.cos(yaw), math.sin(yaw)])
+        dr.heading(t, yaw + float(rng.normal(0.0, math.radians(3.0 * noise_mps / TAS_MPS))))
+        dr.airspeed(t, TAS_MPS + float(rng.normal(0.0, noise_mps)))
+        if t < 60.0:
+            dr.gnss(t, *ORIGIN, v_true)
+        else:
+            assert dr.advance(t)
+            rows.append((t, *v_true, *dr.vel, *dr.output_velocity(t)))
+    r = np.array(rows)
+    return r[:, 0], r[:, 1:3], r[:, 3:5], r[:, 5:7]
+
+
+def test_the_stated_velocity_is_low_passed_and_lags_a_turn_by_its_time_constant():
+    """The raw air velocity steps by its noise between states; the stated one is smooth, and in a turn it lags the
+    truth by about tau times the turn's acceleration (the price of the filter)."""
+    _, truth, raw, out = _reckon_turning(1.0, 1.0)
+    step_raw = np.hypot(*np.diff(raw, axis=0).T)
+    step_out = np.hypot(*np.diff(out, axis=0).T)
+    step_true = np.hypot(*np.diff(truth, axis=0).T)
+    assert np.median(step_out) < 0.3 * np.median(step_raw)
+    assert np.median(step_out) < np.median(step_true) + 0.5
+    _, truth, _, out = _reckon_turning(1.0, 0.0)  # noise-free: the lag alone
+    accel = TAS_MPS * math.radians(3.0)
+    lag_err = np.hypot(*(out - truth).T)[50:]  # after the filter settled from the last GNSS velocity
+    # a first-order lag of tau: |v - v_true| = tau |a|, less half a 0.1 s sample (the input is held over each step)
+    assert np.allclose(lag_err, accel * (1.0 - 0.05), rtol=0.02)
+    _, truth, raw, out = _reckon_turning(0.0, 1.0)
+    assert np.allclose(raw, out, rtol=0, atol=1e-9)  # tau 0: the raw velocity
 
 
 class Flight:
@@ -139,10 +193,10 @@ def test_mag_heading_is_tilt_compensated(roll_deg, pitch_deg):
 
 
 def fly(seed: int, wind_walk: float = 0.1, denial_s: float = DENIAL_S, heading: str = "attitude",
-        yaw_drift_deg: float = 0.0, gyro_bias_degph: float = 30.0):
+        yaw_drift_deg: float = 0.0, gyro_bias_degph: float = 30.0, keep: list | None = None):
     """``yaw_drift_deg``: the autopilot's yaw wanders by this much (a slow sine) once GNSS is lost, as EKF3's did when
     it fused the companion's fixes on ArduPlane SITL; the compass and the gyro (z rate plus ``gyro_bias_degph`` plus
-    white noise, drifting by 5 deg/h an hour) do not."""
+    white noise, drifting by 5 deg/h an hour) do not. ``keep``: the stage and the last time are appended to it."""
     lmap = LocalGravityMap.around(load_grid(GRID))
     flight = Flight(seed)
     rng = np.random.default_rng(seed + 100)
@@ -203,6 +257,8 @@ def fly(seed: int, wind_walk: float = 0.1, denial_s: float = DENIAL_S, heading: 
                 n, e, _ = flight.frame.to_ned_m(st[0].lat_deg, st[0].lon_deg, ALT_M)
                 rows.append((t - t_cut, math.hypot(n - pos[0], e - pos[1]), st[0].sigma_h_m,
                              math.hypot(n_dr - pos[0], e_dr - pos[1]), st[0].measurement == AID))
+    if keep is not None:
+        keep.append((stage, t))
     return np.array(rows, float)
 
 
@@ -244,3 +300,24 @@ def test_the_gyro_heading_keeps_the_filter_when_the_autopilot_yaw_wanders():
           f"gyro: mean {gyr[:, 1].mean():.0f} m, within {np.mean(gyr[:, 1] <= 2 * gyr[:, 2]):.2f}")
     assert gyr[:, 1].mean() < 0.6 * att[:, 1].mean()  # measured 989 against 1884 m (the compass: 808 m)
     assert np.mean(gyr[:, 1] <= 2.0 * gyr[:, 2]) >= 0.9
+
+
+def test_a_state_is_placed_at_its_own_time_when_a_reading_carried_the_reckoning_ahead():
+    """A reading stamped after the navigator's state (live, the navigator's states lag the readings) advances the dead
+    reckoning past the state's time: the state must still be the reference at its own time (taken at the reckoning's
+    latest time it was the lag times the speed ahead: 6 m steps at 1 Hz on ArduPlane SITL)."""
+    keep: list = []
+    fly(1, denial_s=120.0, keep=keep)
+    stage, t = keep[0]
+    first = copy.deepcopy(stage)
+    a = [o for o in first.process(_fused(t + 0.1, *ORIGIN)) if isinstance(o, AirDataState)]
+    ahead = copy.deepcopy(stage)
+    assert ahead.process(GravityReading(t + 1.1, math.nan, 1.0, eotvos_corrected=False)) == []  # no reading: no fix
+    assert ahead.dr.t == pytest.approx(t + 1.1)
+    b = [o for o in ahead.process(_fused(t + 0.1, *ORIGIN)) if isinstance(o, AirDataState)]
+    assert len(a) == len(b) == 1
+    frame = LocalFrame(*ORIGIN, 0.0)
+    na, ea, _ = frame.to_ned_m(a[0].lat_deg, a[0].lon_deg, ALT_M)
+    nb, eb, _ = frame.to_ned_m(b[0].lat_deg, b[0].lon_deg, ALT_M)
+    assert math.hypot(na - nb, ea - eb) < 0.05  # 1 s ahead it was ~22 m
+    assert math.hypot(a[0].vel_n_mps - b[0].vel_n_mps, a[0].vel_e_mps - b[0].vel_e_mps) < 0.3
