@@ -251,6 +251,28 @@ def truth_at(truth: list[tuple[float, float, float]], t) -> tuple[np.ndarray, np
     return lat, lon
 
 
+def truth_velocity_ne(truth: list[tuple[float, float, float]], t, half_s: float = 0.5) -> np.ndarray:
+    """The truth's horizontal velocity (N, E m/s) at times ``t``: its displacement from t - half_s to t + half_s over
+    2 half_s (SIMSTATE has positions only); NaN where the truth is."""
+    t = np.asarray(t, float)
+    la, lo = truth_at(truth, t - half_s)
+    lb, lb_lon = truth_at(truth, t + half_s)
+    lat0 = float(np.nanmean(la)) if np.isfinite(la).any() else 0.0
+    n = np.radians(lb - la) * EARTH_R_M
+    e = np.radians(lb_lon - lo) * EARTH_R_M * math.cos(math.radians(lat0))
+    return np.stack([n, e], axis=-1) / (2.0 * half_s)
+
+
+def velocity_steps_mps2(t, vel_ne) -> np.ndarray:
+    """|v(k+1) - v(k)| / (t(k+1) - t(k)) of a velocity series (m/s^2): what a stated velocity changes between two
+    messages, to be set beside what the vehicle's own velocity does at the same times. Repeated stamps are skipped."""
+    t = np.asarray(t, float)
+    v = np.asarray(vel_ne, float).reshape(-1, 2)
+    dt = np.diff(t)
+    ok = dt > 0
+    return np.hypot(*np.diff(v, axis=0)[ok].T) / dt[ok]
+
+
 def horizontal_error(samples_t, samples_lat, samples_lon, truth) -> np.ndarray:
     """Horizontal distance (m) of each sample from the truth at its time."""
     tl, tn = truth_at(truth, samples_t)

@@ -6,7 +6,8 @@ own GPS_INPUT in the GNSS denial against SITL's truth: settings compared on the 
     python -m replay.live.sitl_gravity_rerun out/plane_ak_s1/companion --map GRID.nc --set gravity.seq_accel_bias_ug=2000
 
 Prints the companion's error / stated h_acc / fix type every 5 min of the denial, its mean error and the share of its
-3D fixes within 2x their h_acc. ``--truth-heading``, ``--truth-wind``, ``--perfect-gravimeter`` put SITL's truth in
+3D fixes within 2x their h_acc, and the velocity it stated against SITL's (its steps between messages, its RMS
+error). ``--truth-heading``, ``--truth-wind``, ``--perfect-gravimeter`` put SITL's truth in
 place of one input (replay.live.sitl_gravity_truth: what limits the error); ``--trace`` prints the filter's wind,
 heading and position error estimates beside the true ones.
 """
@@ -120,6 +121,7 @@ def rerun(arm_dir: Path, sets: list[str], *, truth_heading: bool = False, truth_
     t, err, fx, hacc = core.companion_error(recs, log.truth)
     den = (t >= on) & (t < off)
     d3 = den & (fx >= 3)
+    vel = velocity_figures(sink.records, log.truth, on, off)
     marks = {}
     for m in range(5, int((off - on) / 60.0) + 1, 5):
         i = int(np.argmin(np.abs(t - (on + 60.0 * m)))) if len(t) else 0
@@ -128,7 +130,23 @@ def rerun(arm_dir: Path, sets: list[str], *, truth_heading: bool = False, truth_
             "mean_3d_m": float(err[d3].mean()) if d3.any() else math.nan,
             "share_3d": float(d3.sum() / max(1, den.sum())),
             "within_2hacc": float(np.mean(err[d3] <= 2 * hacc[d3])) if d3.any() else math.nan,
-            "trace": tracer, "deny_on_s": on}
+            "trace": tracer, "deny_on_s": on, "velocity": vel}
+
+
+def velocity_figures(records: list[GpsInputRecord], truth, on_s: float, off_s: float) -> dict[str, float]:
+    """The velocity the companion stated in its 3D fixes of the denial against SITL's: the steps between messages
+    (median and 95th percentile, m/s^2) beside the truth's at the same times, and the RMS error (m/s)."""
+    rs = [r for r in records if r.sent and r.fix_type >= 3 and on_s <= r.time_boot_us / 1e6 < off_s]
+    if len(rs) < 3:
+        return {}
+    t = np.array([r.time_boot_us / 1e6 for r in rs])
+    v = np.array([(r.vel_n_mps, r.vel_e_mps) for r in rs])
+    vt = core.truth_velocity_ne(truth, t)
+    ok = np.all(np.isfinite(vt), axis=1)
+    st, tr = core.velocity_steps_mps2(t[ok], v[ok]), core.velocity_steps_mps2(t[ok], vt[ok])
+    return {"step_median_mps2": float(np.median(st)), "step_p95_mps2": float(np.percentile(st, 95)),
+            "truth_step_median_mps2": float(np.median(tr)), "truth_step_p95_mps2": float(np.percentile(tr, 95)),
+            "error_rms_mps": float(np.sqrt(np.mean(np.sum((v[ok] - vt[ok]) ** 2, axis=1))))}
 
 
 def _dcm(roll: float, pitch: float, yaw: float) -> np.ndarray:
@@ -212,6 +230,11 @@ def main(argv: list[str] | None = None) -> int:
         f"{k}: {v[0]:.0f}/{v[1]:.0f}/{v[2]}" if v else f"{k}: -" for k, v in r["marks"].items()))
     print(f"  mean {r['mean_m']:.0f} m (3D fixes {r['mean_3d_m']:.0f} m, {r['share_3d']:.0%} of the denial's "
           f"GPS_INPUT); within 2x h_acc {r['within_2hacc']:.0%}")
+    v = r["velocity"]
+    if v:
+        print(f"  stated velocity: steps median / p95 {v['step_median_mps2']:.2f} / {v['step_p95_mps2']:.1f} m/s^2 "
+              f"(the truth's {v['truth_step_median_mps2']:.2f} / {v['truth_step_p95_mps2']:.1f}), error RMS "
+              f"{v['error_rms_mps']:.2f} m/s")
     if r["trace"] is not None:
         print("\n".join(r["trace"].lines(r["deny_on_s"], np.arange(a.trace_step_min, 60.01, a.trace_step_min))))
     return 0

@@ -334,3 +334,22 @@ def test_flight_log_round_trips_through_json():
     b = core.analyse(core.SCENARIOS["lap-deny-30"], "A", back)
     assert report.phase_table([a]) == report.phase_table([b]) and report.marks_table([a]) == report.marks_table([b])
     assert back.gps[2] == log.gps[2] and back.events == log.events
+
+
+def test_truth_velocity_and_velocity_steps():
+    """A vehicle going north at 20 m/s then east at 20 m/s: the truth's velocity from its positions, and the steps of
+    a velocity series against what it really does."""
+    lat0, lon0 = -31.0, 156.0
+    r = core.EARTH_R_M
+    truth = []
+    for k in range(201):  # 10 Hz, north for 10 s then east
+        t = 0.1 * k
+        n, e = (20.0 * t, 0.0) if t <= 10.0 else (200.0, 20.0 * (t - 10.0))
+        truth.append((t, lat0 + math.degrees(n / r), lon0 + math.degrees(e / (r * math.cos(math.radians(lat0))))))
+    v = core.truth_velocity_ne(truth, np.array([5.0, 15.0, 10.0, 30.0]))
+    assert np.allclose(v[0], [20.0, 0.0], atol=0.01) and np.allclose(v[1], [0.0, 20.0], atol=0.01)
+    assert np.allclose(v[2], [10.0, 10.0], atol=0.01)  # across the corner: the mean over +-0.5 s
+    assert np.all(np.isnan(v[3]))  # beyond the truth
+    t = np.array([0.0, 0.5, 0.5, 1.0, 2.0])
+    vel = np.array([[20.0, 0.0], [20.0, 1.0], [25.0, 1.0], [20.0, 1.0], [20.0, 4.0]])
+    assert np.allclose(core.velocity_steps_mps2(t, vel), [2.0, 10.0, 3.0])  # the repeated stamp is skipped
