@@ -153,6 +153,14 @@ def failsafes(log: core.FlightLog, deny_on: float, modes: dict[int, str]) -> lis
     return sorted(out)
 
 
+def ahrs_messages(log: core.FlightLog, deny_on: float) -> list[list]:
+    """The AHRS's messages after the survey started ("AHRS: DCM active": ArduPilot's fixed wing left EKF3 for its
+    DCM fallback, AP_AHRS), as [minute after the denial began, text]: not a failsafe, but what flies the vehicle."""
+    t0 = log.marks.get("route", deny_on)
+    return [[round((t - deny_on) / 60.0, 2), txt] for t, _sev, txt in log.texts
+            if math.isfinite(t) and t > t0 and txt.lower().startswith("ahrs:")]
+
+
 def reconverge_s(t: np.ndarray, err: np.ndarray, t_back: float, level_m: float, hold_s: float = 10.0) -> float:
     """Seconds after ``t_back`` until the error is within ``level_m`` and stays there for ``hold_s``; NaN never."""
     sel = t >= t_back
@@ -201,6 +209,7 @@ def arm_summary(log: core.FlightLog, survey: Survey, modes: dict[int, str], kept
         "cross_track_mean_m": _f(float(xt[xden].mean())) if xden.any() else None,
         "cross_track_max_m": _f(float(xt[xden].max())) if xden.any() else None,
         "failsafes": failsafes(log, on, modes),
+        "ahrs": ahrs_messages(log, on),
         "kept_up": bool(kept_up),
         "return_jump_m": _f(core.return_jump(log, off)) if math.isfinite(off) else None,
     }

@@ -34,6 +34,8 @@ def table(summary: dict, vehicle: str) -> str:
     for name, s in arms.items():
         fs = "; ".join(f"{m:+.1f} min {t}" for m, t in s["failsafes"]) or "none"
         out.append(f"- {name}: mode changes and failsafe messages after the survey start: {fs}")
+        ah = "; ".join(f"{m:+.1f} min {t}" for m, t in s.get("ahrs", [])) or "none"
+        out.append(f"- {name}: AHRS messages after the survey start (which estimator flies the vehicle): {ah}")
     out += [""] + verdicts(summary, vehicle)
     return "\n".join(out)
 

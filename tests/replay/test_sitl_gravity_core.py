@@ -78,7 +78,8 @@ def _flight(err_fn, deny_on=1300.0, deny_off=4900.0, end=5200.0, route=100.0, dt
     log.t_boot = end
     log.marks.update({"route": route, "deny_on": deny_on, "deny_off": deny_off, "end": end})
     log.modes = [(0.0, 10, False), (50.0, 10, True), (deny_on + 600.0, 11, True)]  # RTL 10 min into the denial
-    log.texts = [(deny_on + 5.0, 4, "GPS 1: no data"), (deny_on + 30.0, 2, "Failsafe. Long event on")]
+    log.texts = [(deny_on + 5.0, 4, "GPS 1: no data"), (deny_on + 30.0, 2, "Failsafe. Long event on"),
+                 (deny_on + 15.0, 6, "AHRS: DCM active"), (route - 10.0, 6, "AHRS: EKF3 active")]
     return log
 
 
@@ -111,6 +112,7 @@ def test_arm_summary_measures_the_scripted_errors_in_the_schema():
     assert out["healthy_mean_m"] == pytest.approx(1.0, abs=0.05)
     assert out["cross_track_max_m"] < 1.0  # the truth flies the line
     assert [10.0, "mode RTL"] in out["failsafes"] and [0.5, "Failsafe. Long event on"] in out["failsafes"]
+    assert out["ahrs"] == [[0.25, "AHRS: DCM active"]]  # the one before the survey is not counted
     assert out["within_2hacc_frac"] == pytest.approx(0.5, abs=0.01) and out["fixes_in_denial"] == 360
     assert out["last_hacc_m"] == 100.0 and out["own_mean_m"] == pytest.approx(175.0, rel=0.015)
     assert out["return_jump_m"] == pytest.approx(1799.5 - 5.0, rel=0.015)  # the step when GNSS came back
@@ -118,7 +120,7 @@ def test_arm_summary_measures_the_scripted_errors_in_the_schema():
     summary = {"arms": {"alone": gc.arm_summary(log, s, gc.PLANE_MODES, True), "companion": out}}
     assert gc.validate_summary(json.loads(json.dumps(summary))) == []
     text = table(summary, "plane")
-    assert "MISSED" in text and "0.5 min Failsafe. Long event on" in text
+    assert "MISSED" in text and "0.5 min Failsafe. Long event on" in text and "+0.2 min AHRS: DCM active" in text
 
 
 def test_validate_summary_names_what_is_wrong():
