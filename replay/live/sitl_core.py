@@ -256,11 +256,10 @@ def truth_velocity_ne(truth: list[tuple[float, float, float]], t, half_s: float 
     2 half_s (SIMSTATE has positions only); NaN where the truth is."""
     t = np.asarray(t, float)
     la, lo = truth_at(truth, t - half_s)
-    lb, lb_lon = truth_at(truth, t + half_s)
     lat0 = float(np.nanmean(la)) if np.isfinite(la).any() else 0.0
-    n = np.radians(lb - la) * EARTH_R_M
-    e = np.radians(lb_lon - lo) * EARTH_R_M * math.cos(math.radians(lat0))
-    return np.stack([n, e], axis=-1) / (2.0 * half_s)
+    na, ea = to_ne(la, lo, lat0, 0.0)
+    nb, eb = to_ne(*truth_at(truth, t + half_s), lat0, 0.0)
+    return np.stack([nb - na, eb - ea], axis=-1) / (2.0 * half_s)
 
 
 def velocity_steps_mps2(t, vel_ne) -> np.ndarray:

@@ -143,6 +143,8 @@ def velocity_figures(records: list[GpsInputRecord], truth, on_s: float, off_s: f
     v = np.array([(r.vel_n_mps, r.vel_e_mps) for r in rs])
     vt = core.truth_velocity_ne(truth, t)
     ok = np.all(np.isfinite(vt), axis=1)
+    if ok.sum() < 3:  # no truth around them
+        return {}
     st, tr = core.velocity_steps_mps2(t[ok], v[ok]), core.velocity_steps_mps2(t[ok], vt[ok])
     return {"step_median_mps2": float(np.median(st)), "step_p95_mps2": float(np.percentile(st, 95)),
             "truth_step_median_mps2": float(np.median(tr)), "truth_step_p95_mps2": float(np.percentile(tr, 95)),
