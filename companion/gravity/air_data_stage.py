@@ -316,6 +316,7 @@ class AirDataGravityStage(Stage):
                 "status": ", ".join(f"{k}={v}" for k, v in sorted(self.status_counts.items())),
                 "reading_delay_s": f"{self.delay_s:g}", "wind_ne_mps": "none" if w is None else f"{w[0]:.2f},{w[1]:.2f}",
                 "air_stale_steps": str(self.dr.stale_steps),
+                "wind_shifts_s": ", ".join(f"{t:.0f}" for t in self.filter.wind_shift.shifts_t_s) or "none",
                 "gust_at_loss": f"{self._gust[0]:.2f} m/s per reading window, {self._gust[1]:.2f} m/sqrt(s)",
                 **({} if self.gyro is None else {
                     "gyro_heading_at_loss": self._gyro_at_loss or "none",
@@ -325,4 +326,5 @@ class AirDataGravityStage(Stage):
     def summary_lines(self) -> list[str]:
         st = ", ".join(f"{k} {v}" for k, v in sorted(self.status_counts.items())) or "none"
         return [f"gravity      {self.n_readings} readings (sequential on air data), {self.n_states} states in outages; "
-                f"status: {st}; {self.dr.stale_steps} dead-reckoning steps without a recent airspeed/heading"]
+                f"status: {st}; {self.dr.stale_steps} dead-reckoning steps without a recent airspeed/heading; "
+                f"{len(self.filter.wind_shift.shifts_t_s)} wind shifts"]

@@ -51,6 +51,7 @@ import numpy as np
 
 from companion.gravity.maps import LocalGravityMap
 from companion.gravity.particle import FieldSampler
+from companion.gravity.wind_shift import WindShiftDetector, WindShiftSpec
 from companion.gravity.sequential_backends import (  # noqa: F401 - the model is part of this module's interface
     DEGPH_RADPS, G0_MPS2, IB, IBA, IBG, IPSI, IS, IV, N_ALL, N_LIN, N_NL, UG_MPS2, MisfitVarianceLearner, Status,
     _chol_psd, _Mpf, _Pmf,
@@ -154,6 +155,8 @@ class SeqGravConfig:
     min_signal_ratio: float = 1.5
     multimodal_bc: float = 0.6  # bimodality coefficient along the major axis
     lat_deg_if_local: float = 45.0  # Eotvos latitude for a map without a geodetic frame
+    # air data: a wind shift seen in the innovations adds its step to the held wind's error (companion.gravity.wind_shift)
+    wind_shift: WindShiftSpec = field(default_factory=WindShiftSpec)
 
 
 @dataclass(frozen=True)
@@ -228,6 +231,7 @@ class SequentialGravityFilter:
         self._last = None  # (ref_pos, ref_vel, heading, lat) of the previous reading
         self._air_vel: np.ndarray | None = None  # the reference's air velocity at the previous reading (air_heading)
         self._nis = deque()  # (t, nis)
+        self.wind_shift = WindShiftDetector(self.cfg.wind_shift, self.cfg.nis_window_s)
         self._lost = deque()  # t of readings no particle explained
         self._sig = deque()  # (distance, map value at the estimate)
         self._dist_m = 0.0
@@ -271,6 +275,7 @@ class SequentialGravityFilter:
 
     def _reset_windows(self) -> None:
         self._nis.clear()
+        self.wind_shift.reset()
         self._lost.clear()
 
     # -- public ------------------------------------------------------------------------------------------
@@ -343,6 +348,9 @@ class SequentialGravityFilter:
             if self.misfit is not None:
                 self.misfit.add(self._dist_m, float(g_mgal) - hm, r_raw)
             self._nis.append((self.t_s, nis))
+            if (not anchored and cfg.ins.air_data and self.wind_shift.add(self.t_s, nis)
+                    and np.any(H[IV:IV + 2] != 0)):
+                self._wind_step(H[IV:IV + 2])
             if best > cfg.lost_loglik_sigma:
                 self._lost.append(self.t_s)
             while self._nis and self._nis[0][0] < self.t_s - cfg.nis_window_s:
@@ -423,6 +431,15 @@ class SequentialGravityFilter:
                 w, V = np.linalg.eigh(0.5 * (dP + dP.T))
                 dP = (V * np.maximum(w, 0.0)) @ V.T
                 self.be.predict(Phi, Qd, qn, dP, float(Phi[N_NL + IB, N_NL + IB]), float(Qd[N_NL + IB, N_NL + IB]))
+
+    def _wind_step(self, h_vel: np.ndarray) -> None:
+        """A wind shift (companion.gravity.wind_shift): the held wind's error gains the step's variance along the
+        readings' velocity sensitivity h_vel, the component they observe at once."""
+        u = h_vel / float(np.hypot(*h_vel))
+        Q = self.cfg.wind_shift.step_mps**2 * np.outer(u, u)
+        j = N_NL + IV
+        self.P_ins[j:j + 2, j:j + 2] += Q
+        self.be.add_velocity_cov(Q)
 
     def _anchor(self, pos_cov) -> None:
         """Reference as good as GNSS: the position is the reference's, INS error states at their prior; only the

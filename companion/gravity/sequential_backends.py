@@ -319,6 +319,10 @@ class _Mpf:
         self.xn = self.xn + np.asarray(d_pos_ne_m, float)
         self.xl[:, IV:IV + 2] += np.asarray(d_vel_ne_mps, float)
 
+    def add_velocity_cov(self, Q: np.ndarray) -> None:
+        """The velocity error's covariance grows by Q (2x2) in every particle's Kalman filter."""
+        self.Pl[IV:IV + 2, IV:IV + 2] += Q
+
 
 class _Pmf:
     """Point-mass filter on a moving n x n grid over the position error, map misfit per point (shared variance)."""
@@ -444,3 +448,6 @@ class _Pmf:
         d = np.asarray(d_pos_ne_m, float)
         self.pts = self.pts + d
         self.centre = self.centre + d
+
+    def add_velocity_cov(self, Q: np.ndarray) -> None:
+        """No velocity states: the INS-alone covariance the front-end carries takes it."""

@@ -43,6 +43,7 @@ from companion.gravity.maps import LocalGravityMap
 from companion.gravity.placement import MapView, Placement
 from companion.gravity.reading_stage import GravityReadingStage
 from companion.gravity.sequential import InsErrorSpec, SeqGravConfig, SequentialGravityFilter
+from companion.gravity.wind_shift import WindShiftSpec
 from companion.nav.outputs import FusedState
 
 #: a fix leaves this as a position sigma on an axis the filter adds nothing to (no information there)
@@ -276,4 +277,7 @@ def seq_config_of(gravity) -> SeqGravConfig:
                        air_heading=getattr(gravity, "reference", "navigator") == "air_data"
                        and getattr(gravity, "air_heading", "attitude") == "gyro",
                        gyro_bias_walk_degph_rth=getattr(gravity, "air_gyro_bias_walk_degph_rth", 0.0))
-    return SeqGravConfig(n_particles=gravity.seq_particles, noise_corr_s=gravity.seq_noise_corr_s, ins=ins)
+    shift = WindShiftSpec(step_mps=getattr(gravity, "seq_wind_shift_mps", 0.0),
+                          nis_ratio=getattr(gravity, "seq_wind_shift_nis_ratio", WindShiftSpec.nis_ratio))
+    return SeqGravConfig(n_particles=gravity.seq_particles, noise_corr_s=gravity.seq_noise_corr_s, ins=ins,
+                         wind_shift=shift)

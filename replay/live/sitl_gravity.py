@@ -72,7 +72,8 @@ COMPANION_PARAMS = {"GPS2_TYPE": 14, "GPS_AUTO_SWITCH": 4, "GPS_PRIMARY": 0, "SE
 #: integrated (HIGHRES_IMU: RAW_IMU truncates to whole mrad/s), bias fitted to ATTITUDE yaw with GNSS and frozen in the
 #: outage (EKF3's yaw turns with the fixes it fuses; the compass was worse: 0012), readings Eotvos-uncorrected,
 #: white per reading and describing the vehicle half the gravimeter's 30 s window before their stamp, the held wind's
-#: error a random walk of 0.1 m/s per sqrt(s) from a 1 m/s prior; its states sent as 3D fixes with their honest h_acc
+#: error a random walk of 0.1 m/s per sqrt(s) from a 1 m/s prior, plus a 5 m/s step along the Eotvos direction when
+#: the readings show a wind shift (docs/decisions/0017); its states sent as 3D fixes with their honest h_acc
 #: (EKF3 weighs a GPS by its reported accuracy, capped at 100 m: AP_NavEKF3_PosVelFusion) and a speed accuracy of 50 m/s
 #: (EKF3's cap: their velocity, made of EKF3's own yaw, is not to steer that yaw)
 COMPANION_SETS = ['inject.activate="backup"', "navigator.gnss_delay_estimate=true", "navigator.fuse_attitude_yaw=true",
@@ -80,6 +81,7 @@ COMPANION_SETS = ['inject.activate="backup"', "navigator.gnss_delay_estimate=tru
                   'gravity.reference="air_data"', 'gravity.air_heading="gyro"', 'gravity.air_gyro_source="HIGHRES_IMU"',
                   "gravity.eotvos_corrected=false", "gravity.seq_noise_corr_s=1",
                   "gravity.reading_delay_s=15", "gravity.seq_init_vel_sigma_mps=1", "gravity.seq_wind_walk_mps_rts=0.1",
+                  "gravity.seq_wind_shift_mps=5",
                   "gravity.seq_particles=500", "gravity.air_speed_sigma_floor_mps=50", "inject.max_h_acc_3d_m=20000", "inject.max_h_acc_2d_m=40000",
                   "inject.max_v_acc_3d_m=200"]
 STREAMS_HZ = {"GLOBAL_POSITION_INT": 5, "SIMSTATE": 5, "ATTITUDE": 5, "GPS_RAW_INT": 1, "GPS2_RAW": 1,

@@ -19,6 +19,7 @@ from companion.gravity.air_data_stage import AID, AirDataGravityStage, AirDataSt
 from companion.gravity.data import AK_GULF, shared_gravity_dir
 from companion.gravity.maps import LocalGravityMap, load_grid
 from companion.gravity.sequential import InsErrorSpec, SeqGravConfig
+from companion.gravity.wind_shift import WindShiftSpec
 from companion.nav.frame import LocalFrame
 from companion.nav.outputs import FrameInfo, FusedState
 from companion.sim.gravity_residuals import ship_minus_satellite_mgal
@@ -193,10 +194,12 @@ def test_mag_heading_is_tilt_compensated(roll_deg, pitch_deg):
 
 
 def fly(seed: int, wind_walk: float = 0.1, denial_s: float = DENIAL_S, heading: str = "attitude",
-        yaw_drift_deg: float = 0.0, gyro_bias_degph: float = 30.0, keep: list | None = None):
+        yaw_drift_deg: float = 0.0, gyro_bias_degph: float = 30.0, keep: list | None = None,
+        wind_shift_mps: float = 0.0):
     """``yaw_drift_deg``: the autopilot's yaw wanders by this much (a slow sine) once GNSS is lost, as EKF3's did when
     it fused the companion's fixes on ArduPlane SITL; the compass and the gyro (z rate plus ``gyro_bias_degph`` plus
-    white noise, drifting by 5 deg/h an hour) do not. ``keep``: the stage and the last time are appended to it."""
+    white noise, drifting by 5 deg/h an hour) do not. ``keep``: the stage and the last time are appended to it.
+    ``wind_shift_mps``: the filter's wind-shift step (companion.gravity.wind_shift; 0: off)."""
     lmap = LocalGravityMap.around(load_grid(GRID))
     flight = Flight(seed)
     rng = np.random.default_rng(seed + 100)
@@ -204,7 +207,8 @@ def fly(seed: int, wind_walk: float = 0.1, denial_s: float = DENIAL_S, heading: 
     meter = TruthGravimeter(lmap, GravimeterSpec(), np.random.default_rng(seed), ship_minus_satellite_mgal())
     cfg = SeqGravConfig(n_particles=300, noise_corr_s=1.0,
                         ins=InsErrorSpec(air_data=True, wind_walk_mps_rts=wind_walk, init_vel_sigma_mps=1.0,
-                                         air_heading=heading == "gyro", gyro_bias_walk_degph_rth=5.0))
+                                         air_heading=heading == "gyro", gyro_bias_walk_degph_rth=5.0),
+                        wind_shift=WindShiftSpec(step_mps=wind_shift_mps))
     stage = AirDataGravityStage(lmap, cfg, sigma_mgal=1.0, reading_delay_s=15.0, seed=seed, heading=heading)
     stage.process(FrameInfo(0.0, ORIGIN[0], ORIGIN[1], 0.0))
     dr = AirDataReckoner()  # the held-wind dead reckoning alone, on the same inputs (the compass's heading, offset known)
