@@ -76,6 +76,17 @@ def build_meter(map_path: str, seed: int, spec: GravimeterSpec, origin: tuple[fl
     return TruthGravimeter(lmap, spec, rng, ship_minus_satellite_mgal() if spec.misfit else None, origin)
 
 
+def raise_on_eof(link) -> None:
+    """pymavlink's TCP link without auto-reconnect reports the peer's close by printing "EOF on TCP socket" and
+    returning nothing, at every read, for ever: a reader then spins. Make the close a ConnectionError instead."""
+
+    def eof() -> None:
+        raise ConnectionError(f"the peer closed {getattr(link, 'address', 'the link')}")
+
+    if hasattr(link, "handle_eof"):
+        link.handle_eof = eof
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m companion.sim.sitl_gravimeter_link", description=__doc__.splitlines()[0])
     ap.add_argument("--connect", required=True, help="pymavlink address of a spare SITL port, e.g. tcp:127.0.0.1:5763")
@@ -113,6 +124,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"gravimeter: cannot connect {a.connect}: {e}", file=sys.stderr)
                 return 2
             time.sleep(0.2)
+    raise_on_eof(link)
     stop = {"v": False}
     signal.signal(signal.SIGTERM, lambda *_: stop.update(v=True))
     rec = open(a.record, "w") if a.record else None
@@ -139,8 +151,8 @@ def main(argv: list[str] | None = None) -> int:
                     lat, lon = gl.last_truth
                     rec.write(json.dumps({"t_s": tb_ms / 1000.0, "mgal": v, "lat": lat, "lon": lon,
                                           "map_mgal": meter.truth_value_mgal(lat, lon)}) + "\n")
-    except (ConnectionError, OSError):
-        pass
+    except (ConnectionError, OSError) as e:
+        print(f"gravimeter: link closed: {e}", flush=True)
     finally:
         if rec is not None:
             rec.close()

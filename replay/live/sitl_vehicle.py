@@ -146,6 +146,9 @@ class Vehicle:
                 if time.monotonic() > deadline:
                     raise HarnessError(f"SITL never accepted {url}: {e}") from e
                 time.sleep(0.2)
+        from companion.sim.sitl_gravimeter_link import raise_on_eof
+
+        raise_on_eof(self.m)  # SITL gone: a HarnessError from pump, not a loop on a closed socket
         self.hooks: list = []
 
     def close(self) -> None:
@@ -162,12 +165,15 @@ class Vehicle:
                 if must:
                     raise HarnessError(f"timed out after {wall_s:g} s waiting for {what}")
                 return False
-            m = self.m.recv_match(blocking=True, timeout=0.1)
-            while m is not None:
-                self.on_message(m)
-                for h in list(self.hooks):
-                    h(m)
-                m = self.m.recv_match(blocking=False)
+            try:
+                m = self.m.recv_match(blocking=True, timeout=0.1)
+                while m is not None:
+                    self.on_message(m)
+                    for h in list(self.hooks):
+                        h(m)
+                    m = self.m.recv_match(blocking=False)
+            except ConnectionError as e:
+                raise HarnessError(f"the autopilot's link closed while waiting for {what}: {e}") from e
 
     def wait_vehicle_time(self, t: float, speedup: float, what: str) -> None:
         now = self.clock() or 0.0

@@ -353,3 +353,33 @@ def test_truth_velocity_and_velocity_steps():
     t = np.array([0.0, 0.5, 0.5, 1.0, 2.0])
     vel = np.array([[20.0, 0.0], [20.0, 1.0], [25.0, 1.0], [20.0, 1.0], [20.0, 4.0]])
     assert np.allclose(core.velocity_steps_mps2(t, vel), [2.0, 10.0, 3.0])  # the repeated stamp is skipped
+
+
+def test_a_link_the_autopilot_closed_ends_the_wait_with_a_harness_error():
+    """SITL gone (a crash, or its port taken by another run): pymavlink's TCP link prints "EOF on TCP socket" at every
+    read and returns nothing, so a wait for the vehicle's time would spin for its whole bound. It raises instead."""
+    import socket
+    import threading
+    import time
+
+    from replay.live.sitl_vehicle import HarnessError, Vehicle
+
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(1)
+    port = srv.getsockname()[1]
+
+    def accept_and_close():
+        conn, _ = srv.accept()
+        conn.close()
+
+    th = threading.Thread(target=accept_and_close, daemon=True)
+    th.start()
+    veh = Vehicle(f"tcp:127.0.0.1:{port}", lambda m: None, lambda: None, connect_s=30.0)
+    th.join(30.0)
+    t0 = time.monotonic()
+    with pytest.raises(HarnessError, match="link closed while waiting for the vehicle"):
+        veh.pump(lambda: False, 120.0, "the vehicle")
+    assert time.monotonic() - t0 < 60.0  # raised at the close, not at the 120 s bound
+    veh.close()
+    srv.close()
