@@ -221,12 +221,7 @@ def fly(a, arm: str) -> dict:
 
 
 def free_instance_after(i0: int) -> int:
-    from replay.live.sitl_vehicle import _port_free
-
-    for i in range(i0 + 1, 30):
-        if all(_port_free(5760 + 10 * i + k) for k in range(4)):
-            return i
-    raise HarnessError("no free SITL instance")
+    return free_instance(limit=30, start=i0 + 1)
 
 
 def run_schedule(veh: Vehicle, a, log: core.FlightLog) -> None:

@@ -50,12 +50,37 @@ def _port_free(port: int) -> bool:
     return True
 
 
-def free_instance(limit: int = 20) -> int:
-    """A SITL instance number -I whose ports 5760+10i .. 5763+10i are free on loopback."""
-    for i in range(limit):
-        if all(_port_free(5760 + 10 * i + k) for k in range(4)):
-            return i
-    raise HarnessError("no SITL instance with free ports 5760+10i..5763+10i")
+#: an instance handed out stays claimed this long (wall time), so that runs started together take different ones
+#: before any of their SITLs has bound its ports
+CLAIM_S = 60.0
+
+
+def free_instance(limit: int = 20, start: int = 0, registry: Path | None = None, claim_s: float = CLAIM_S) -> int:
+    """A SITL instance number -I (from ``start``) whose ports 5760+10i .. 5763+10i are free on loopback and which no
+    harness on this machine was handed in the last ``claim_s`` (the claims are a file in the temp directory, read and
+    written under an exclusive lock)."""
+    import fcntl
+    import tempfile
+
+    path = registry or Path(tempfile.gettempdir()) / "companion-sitl-instances"
+    with open(path, "a+") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        f.seek(0)
+        now = time.time()
+        claims = {}
+        for line in f.read().splitlines():
+            with suppress(ValueError):
+                i, t = line.split()
+                if now - float(t) < claim_s:
+                    claims[int(i)] = float(t)
+        for i in range(start, limit):
+            if i not in claims and all(_port_free(5760 + 10 * i + k) for k in range(4)):
+                claims[i] = now
+                f.seek(0)
+                f.truncate()
+                f.write("".join(f"{k} {v}\n" for k, v in claims.items()))
+                return i
+    raise HarnessError(f"no SITL instance from {start} below {limit} with free ports 5760+10i..5763+10i")
 
 
 def resolve_bin(arg: str | None, env: str = "COMPANION_SITL_BIN") -> Path:

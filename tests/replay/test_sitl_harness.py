@@ -383,3 +383,18 @@ def test_a_link_the_autopilot_closed_ends_the_wait_with_a_harness_error():
     assert time.monotonic() - t0 < 60.0  # raised at the close, not at the 120 s bound
     veh.close()
     srv.close()
+
+
+def test_runs_started_together_are_handed_different_sitl_instances(tmp_path):
+    """Two runs started at once used to take the same instance (both found its ports free before either SITL bound
+    them): an instance handed out stays claimed for a while."""
+    from replay.live.sitl_vehicle import free_instance
+
+    reg = tmp_path / "claims"
+    a = free_instance(registry=reg)
+    b = free_instance(registry=reg)
+    c = free_instance(start=b, registry=reg)
+    assert len({a, b, c}) == 3 and c > b
+    assert free_instance(registry=reg, claim_s=0.0) == a  # expired claims are dropped
+    (reg).write_text("garbage\n3 not-a-time\n")
+    assert free_instance(registry=reg) == a  # an unreadable line is no claim
