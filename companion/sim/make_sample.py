@@ -31,6 +31,13 @@ def flight_tlog_bytes(flight: SimulatedFlight) -> tuple[bytes, Counter]:
     return tlog_bytes(pack_stream(msgs, flight.config.boot_epoch_us)), counts
 
 
+def _fixed(v: float, decimals: int) -> str:
+    """``v`` with ``decimals`` decimals, never "-0.000...": the sign of a value below the resolution depends on the
+    numpy build's last bits (the sample must regenerate byte for byte on any)."""
+    s = f"{v:.{decimals}f}"
+    return s[1:] if s.startswith("-") and float(s) == 0.0 else s
+
+
 def truth_csv_text(flight: SimulatedFlight, rate_hz: float = TRUTH_RATE_HZ) -> str:
     """Truth at ``rate_hz``: time, geodetic position, NED position and velocity, attitude."""
     tr = flight.profile.sample_rate(rate_hz)
@@ -44,10 +51,10 @@ def truth_csv_text(flight: SimulatedFlight, rate_hz: float = TRUTH_RATE_HZ) -> s
     )
     for k in range(len(tr)):
         w.writerow(
-            [f"{tr.t_s[k]:.1f}", f"{tr.lat_deg[k]:.9f}", f"{tr.lon_deg[k]:.9f}", f"{tr.alt_msl_m[k]:.4f}"]
-            + [f"{v:.4f}" for v in tr.pos_ned_m[k]]
-            + [f"{v:.4f}" for v in tr.vel_ned_mps[k]]
-            + [f"{v:.6f}" for v in tr.euler_rad[k]]
+            [_fixed(tr.t_s[k], 1), _fixed(tr.lat_deg[k], 9), _fixed(tr.lon_deg[k], 9), _fixed(tr.alt_msl_m[k], 4)]
+            + [_fixed(v, 4) for v in tr.pos_ned_m[k]]
+            + [_fixed(v, 4) for v in tr.vel_ned_mps[k]]
+            + [_fixed(v, 6) for v in tr.euler_rad[k]]
         )
     return buf.getvalue()
 
