@@ -54,11 +54,13 @@ class WindShiftDetector:
     def add(self, t_s: float, nis: float) -> bool:
         """One reading's NIS; True when it completes a shift (then held off for ``holdoff_s``)."""
         s = self.spec
+        self.last_ratio = float("nan")
+        if not self.enabled:
+            return False
         self._nis.append((float(t_s), float(nis)))
         while self._nis and self._nis[0][0] < t_s - self.history_s:
             self._nis.popleft()
-        self.last_ratio = float("nan")
-        if not self.enabled or t_s < self._hold_until or self._nis[0][0] > t_s - s.window_s - s.min_history_s:
+        if t_s < self._hold_until or self._nis[0][0] > t_s - s.window_s - s.min_history_s:
             return False
         recent = [v for t, v in self._nis if t > t_s - s.window_s]
         before = [v for t, v in self._nis if t <= t_s - s.window_s]

@@ -49,7 +49,8 @@ def _fly(step_mps: float, seed: int = 3, t_step: float = 900.0, t_end: float = 1
     """Northbound at 22 m/s across the synthetic map; the reference is the truth plus the held wind's error, zero
     until ``t_step`` and 5 m/s east after it; 1 Hz readings with 1 mGal white noise, Eotvos-corrected with the
     reference's velocity, stated at ``stated_mgal`` (as the air-data stage states them in an outage: the gusts the held
-    wind does not know, correlated over the gravimeter's window, companion.gravity.air_data_stage). Returns (t, position error (m), velocity error estimate east (m/s), shifts)."""
+    wind does not know, correlated over the gravimeter's window, companion.gravity.air_data_stage). Returns (t,
+    position error (m), velocity error estimate east (m/s)) rows and the shifts' times."""
     rng = np.random.default_rng(seed)
     cfg = SeqGravConfig(n_particles=300, ins=InsErrorSpec(air_data=True, wind_walk_mps_rts=0.1, init_vel_sigma_mps=1.0),
                         wind_shift=WindShiftSpec(step_mps=step_mps))
@@ -64,8 +65,9 @@ def _fly(step_mps: float, seed: int = 3, t_step: float = 900.0, t_end: float = 1
         ref = ref + v_true + dv
         g = float(MAP.interp_ne(truth[0:1], truth[1:2])[0]) + rng.normal(0.0, 1.0)
         g += float(eotvos_from_ne_mgal(v_true, LAT) - eotvos_from_ne_mgal(v_true + dv, LAT))
-        e = f.feed(float(t), g, ref, v_true + dv, 1.0 if t < 300 else stated_mgal, ref_cov_ne_m2=np.eye(2) * 4.0 if t < 300 else None,
-                   lat_deg=LAT)
+        anchored = t < 300  # GNSS: pinned to the reference, the readings at their own noise
+        e = f.feed(float(t), g, ref, v_true + dv, 1.0 if anchored else stated_mgal,
+                   ref_cov_ne_m2=np.eye(2) * 4.0 if anchored else None, lat_deg=LAT)
         if e is not None and t >= 300:
             rows.append((t, float(np.hypot(*(e.pos_ne_m - truth))), float(e.vel_err_ne_mps[1])))
     return np.array(rows), list(f.wind_shift.shifts_t_s)
