@@ -156,6 +156,10 @@ class GravityConfig:
     # (companion.gravity.wind_shift, docs/decisions/0017-wind-shift.md)
     seq_wind_shift_mps: float = 5.0
     seq_wind_shift_nis_ratio: float = 5.0
+    # air data: a shift of the filter's estimate beyond this chi-square (2 dof) under what its covariance allowed, at
+    # one reading or over the last 10 min, is added to every accuracy stated for the rest of the outage; 0: off
+    # (companion.gravity.jump_guard, docs/decisions/0018-jump-guard.md)
+    seq_jump_chi2: float = 9.21
     # air data: the speed accuracy its states state is never below this (the autopilot fuses their velocity by it, and
     # their velocity is made of the autopilot's own heading: a large value keeps that heading from following it)
     air_speed_sigma_floor_mps: float = 0.0
@@ -230,6 +234,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "gravity.seq_init_vel_sigma_mps": (1e-4, 100.0), "gravity.seq_noise_corr_s": (0.0, 3600.0),
     "gravity.seq_min_gain": (0.0, 0.99), "gravity.seq_wind_walk_mps_rts": (0.0, 10.0),
     "gravity.seq_wind_shift_mps": (0.0, 50.0), "gravity.seq_wind_shift_nis_ratio": (1.01, 1e6),
+    "gravity.seq_jump_chi2": (0.0, 1e6),
     "gravity.air_gyro_window_s": (120.0, 7200.0), "gravity.air_gyro_bias_walk_degph_rth": (0.0, 1000.0),
     "gravity.air_gyro_arw_deg_rth": (0.0, 100.0), "gravity.air_output_tau_s": (0.0, 60.0),
     "gravity.reading_delay_s": (0.0, 600.0),

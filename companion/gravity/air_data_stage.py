@@ -36,6 +36,7 @@ from companion.events import (Attitude, AirData, AutopilotAltitude, Event, FixTy
                                MagField)
 from companion.gravity.air_data import AirDataConfig, AirDataReckoner, HeadingOffset, mag_heading_rad, tas_from_eas_mps
 from companion.gravity.gyro_heading import DEGPH, GyroHeading, GyroHeadingConfig
+from companion.gravity.jump_guard import CHI2_2_99, JumpGuard
 from companion.gravity.eotvos import eotvos_from_ne_mgal
 from companion.gravity.maps import LocalGravityMap
 from companion.gravity.sequential import SeqGravConfig, SeqGravEstimate, SequentialGravityFilter
@@ -77,7 +78,8 @@ class AirDataGravityStage(Stage):
                  sigma_mgal: float = 1.0, reading_delay_s: float = 0.0, source: str = "gravity:air_data",
                  seed: int = 0, receiver_instance: int = 0, gnss_timeout_s: float = 0.6,
                  speed_sigma_floor_mps: float = 0.0, heading: str = "attitude",
-                 gyro: GyroHeadingConfig | None = None, gyro_imu_index: int = 0) -> None:
+                 gyro: GyroHeadingConfig | None = None, gyro_imu_index: int = 0,
+                 jump_chi2: float = CHI2_2_99) -> None:
         if heading not in HEADINGS:
             raise ValueError(f"heading must be one of {', '.join(HEADINGS)}, not {heading!r}")
         if (heading == "gyro") != cfg.ins.air_heading:
@@ -113,6 +115,7 @@ class AirDataGravityStage(Stage):
         self._outage_t: float | None = None  # the last good fix before the outage in progress
         self._pending: deque[GravityReading] = deque()
         self._est: SeqGravEstimate | None = None  # the filter's last estimate on its own in this outage
+        self.jumps = JumpGuard(jump_chi2)  # adds a jump the filter's covariance did not allow to what is stated
         self._withhold = False  # the navigator's state just seen is replaced (passes says False)
         self.n_readings = self.n_states = 0
         self.status_counts: Counter = Counter()
@@ -186,6 +189,7 @@ class AirDataGravityStage(Stage):
                 self.filter.cfg = self.cfg
             self._outage_t = None
             self._est = None
+            self.jumps.reset()
         else:
             self._bad_t = fix.t_s
 
@@ -223,6 +227,7 @@ class AirDataGravityStage(Stage):
                 self._gyro_at_loss = (f"bias {b / DEGPH:.1f} deg/h, sigma {sb / DEGPH:.2f} deg/h, alignment sigma "
                                       f"{math.degrees(sa):.2f} deg")
         self.filter.cfg = cfg
+        self.jumps.set_process_noise(cfg.ins.wind_walk_mps_rts, cfg.pos_noise_m_rts)
 
     def _reading(self, r: GravityReading) -> list[Event]:
         t_ref = r.t_s - self.delay_s
@@ -259,6 +264,10 @@ class AirDataGravityStage(Stage):
         self.status_counts[e.status] += 1
         if not anchored:
             self._est = e
+            if e.status == "reinit":
+                self.jumps.restart()
+            else:
+                self.jumps.observe(e.t_s, e.err_ne_m, e.cov_ne_m2, e.vel_err_ne_mps, e.vel_cov_ne_m2ps2)
         return [SequentialRecord(float(r.t_s), e.status, float(e.pos_ne_m[0]), float(e.pos_ne_m[1]), e.lat_deg,
                                  e.lon_deg, float(e.h_acc_m), math.nan, float(e.n_eff), float(e.signal_ratio),
                                  float(e.nis_mean), int(e.reinit_count), float(e.map_bias_mgal), False, math.nan,
@@ -291,6 +300,7 @@ class AirDataGravityStage(Stage):
         dv = e.vel_err_ne_mps if e.vel_err_ne_mps is not None else np.zeros(2)
         err = e.err_ne_m + dv * dt
         cov = e.cov_ne_m2 + (e.vel_cov_ne_m2ps2 * dt * dt if e.vel_cov_ne_m2ps2 is not None else 0.0)
+        cov = cov + self.jumps.cov_ne_m2
         lon_o, lat_o = self.lmap.ne_to_xy((ne - err)[0], (ne - err)[1])
         v_n, v_e = vn - float(dv[0]), ve - float(dv[1])
         pv = np.diag(e.vel_cov_ne_m2ps2) if e.vel_cov_ne_m2ps2 is not None else np.full(2, 1e4)
@@ -317,6 +327,7 @@ class AirDataGravityStage(Stage):
                 "reading_delay_s": f"{self.delay_s:g}", "wind_ne_mps": "none" if w is None else f"{w[0]:.2f},{w[1]:.2f}",
                 "air_stale_steps": str(self.dr.stale_steps),
                 "wind_shifts_s": ", ".join(f"{t:.0f}" for t in self.filter.wind_shift.shifts_t_s) or "none",
+                "jumps": ", ".join(f"{j.t_s:.0f} s {j.shift_m:.0f} m (d2 {j.d2:.0f})" for j in self.jumps.jumps) or "none",
                 "gust_at_loss": f"{self._gust[0]:.2f} m/s per reading window, {self._gust[1]:.2f} m/sqrt(s)",
                 **({} if self.gyro is None else {
                     "gyro_heading_at_loss": self._gyro_at_loss or "none",
@@ -327,4 +338,5 @@ class AirDataGravityStage(Stage):
         st = ", ".join(f"{k} {v}" for k, v in sorted(self.status_counts.items())) or "none"
         return [f"gravity      {self.n_readings} readings (sequential on air data), {self.n_states} states in outages; "
                 f"status: {st}; {self.dr.stale_steps} dead-reckoning steps without a recent airspeed/heading; "
-                f"{len(self.filter.wind_shift.shifts_t_s)} wind shifts"]
+                f"{len(self.filter.wind_shift.shifts_t_s)} wind shifts; {len(self.jumps.jumps)} jumps beyond the stated "
+                "covariance"]

@@ -367,7 +367,8 @@ def live_gravity_stage(config) -> Stage:
                                    gyro=GyroHeadingConfig(window_s=config.air_gyro_window_s,
                                                           bias_walk_degph_rth=config.air_gyro_bias_walk_degph_rth,
                                                           arw_deg_rth=config.air_gyro_arw_deg_rth),
-                                   gyro_imu_index=GYRO_SOURCES[config.air_gyro_source])
+                                   gyro_imu_index=GYRO_SOURCES[config.air_gyro_source],
+                                   jump_chi2=config.seq_jump_chi2)
     if config.matcher == "sequential":
         from companion.gravity.sequential_stage import SequentialGravityStage, seq_config_of
 

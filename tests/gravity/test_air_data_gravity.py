@@ -325,3 +325,26 @@ def test_a_state_is_placed_at_its_own_time_when_a_reading_carried_the_reckoning_
     nb, eb, _ = frame.to_ned_m(b[0].lat_deg, b[0].lon_deg, ALT_M)
     assert math.hypot(na - nb, ea - eb) < 0.05  # 1 s ahead it was ~22 m
     assert math.hypot(a[0].vel_n_mps - b[0].vel_n_mps, a[0].vel_e_mps - b[0].vel_e_mps) < 0.3
+
+
+def test_a_jump_beyond_the_stated_covariance_is_in_every_state_stated_until_gnss_returns():
+    """The jump guard (companion.gravity.jump_guard) adds a shift the filter's covariance did not allow to the stated
+    covariance of every state after it; a good fix clears it."""
+    keep: list = []
+    fly(1, denial_s=120.0, heading="gyro", keep=keep)
+    stage, t = keep[0]
+    base = [o for o in copy.deepcopy(stage).process(_fused(t + 0.1, *ORIGIN)) if isinstance(o, AirDataState)]
+    g = stage.jumps
+    assert g.chi2 > 0 and np.all(g.cov_ne_m2 == 0.0)  # on by default; nothing fired in this flight
+    e = stage._est
+    g.observe(e.t_s + 0.05, e.err_ne_m + np.array([0.0, 30_000.0]), e.cov_ne_m2)  # 30 km east in 50 ms
+    jumped = [o for o in stage.process(_fused(t + 0.1, *ORIGIN)) if isinstance(o, AirDataState)]
+    assert len(base) == len(jumped) == 1
+    assert jumped[0].sigma_h_m**2 == pytest.approx(base[0].sigma_h_m**2 + 30_000.0**2, rel=1e-3)
+    assert jumped[0].cov_diag[1] == pytest.approx(base[0].cov_diag[1] + 30_000.0**2, rel=1e-3)
+    assert g.jumps[-1].shift_m == pytest.approx(30_000.0, rel=1e-3) and stage.metadata()["jumps"].startswith(
+        f"{g.jumps[-1].t_s:.0f} s 300")
+    lat, lon = ORIGIN
+    stage.process(GnssFix(t + 0.2, 3, lat, lon, ALT_M, 0.0, 20.0, 0.0, None, None, 12, 0.8, 1.0, 1.5, 2.0, 0.3, None,
+                          None))
+    assert np.all(g.cov_ne_m2 == 0.0)
