@@ -130,7 +130,7 @@ def rerun(arm_dir: Path, sets: list[str], *, truth_heading: bool = False, truth_
             "mean_3d_m": float(err[d3].mean()) if d3.any() else math.nan,
             "share_3d": float(d3.sum() / max(1, den.sum())),
             "within_2hacc": float(np.mean(err[d3] <= 2 * hacc[d3])) if d3.any() else math.nan,
-            "trace": tracer, "deny_on_s": on, "velocity": vel}
+            "trace": tracer, "deny_on_s": on, "velocity": vel, "stage": stage.summary_lines()}
 
 
 def velocity_figures(records: list[GpsInputRecord], truth, on_s: float, off_s: float) -> dict[str, float]:
@@ -230,6 +230,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"settings: --set {' --set '.join(a.set) or '(the run s own)'}; truth for: {', '.join(truth) or 'nothing'}")
     print("  error / h_acc / fix every 5 min: " + "  ".join(
         f"{k}: {v[0]:.0f}/{v[1]:.0f}/{v[2]}" if v else f"{k}: -" for k, v in r["marks"].items()))
+    print("\n".join("  " + line for line in r["stage"]))
     print(f"  mean {r['mean_m']:.0f} m (3D fixes {r['mean_3d_m']:.0f} m, {r['share_3d']:.0%} of the denial's "
           f"GPS_INPUT); within 2x h_acc {r['within_2hacc']:.0%}")
     v = r["velocity"]
