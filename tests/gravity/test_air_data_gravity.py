@@ -17,6 +17,8 @@ from companion.gravity.air_data import (AirDataConfig, AirDataReckoner, LowPass,
                                         tas_from_eas_mps)
 from companion.gravity.air_data_stage import AID, AirDataGravityStage, AirDataState
 from companion.gravity.data import AK_GULF, shared_gravity_dir
+from companion.gravity.gyro_heading import GyroHeadingConfig
+from companion.gravity.jump_guard import CHI2_2_99
 from companion.gravity.maps import LocalGravityMap, load_grid
 from companion.gravity.sequential import InsErrorSpec, SeqGravConfig
 from companion.gravity.wind_shift import WindShiftSpec
@@ -195,11 +197,14 @@ def test_mag_heading_is_tilt_compensated(roll_deg, pitch_deg):
 
 def fly(seed: int, wind_walk: float = 0.1, denial_s: float = DENIAL_S, heading: str = "attitude",
         yaw_drift_deg: float = 0.0, gyro_bias_degph: float = 30.0, keep: list | None = None,
-        wind_shift_mps: float = 0.0):
+        wind_shift_mps: float = 0.0, bias_step_degph: float = 0.0, gyro_walk_degph_rth: float = 5.0,
+        jump_chi2: float = CHI2_2_99):
     """``yaw_drift_deg``: the autopilot's yaw wanders by this much (a slow sine) once GNSS is lost, as EKF3's did when
     it fused the companion's fixes on ArduPlane SITL; the compass and the gyro (z rate plus ``gyro_bias_degph`` plus
     white noise, drifting by 5 deg/h an hour) do not. ``keep``: the stage and the last time are appended to it.
-    ``wind_shift_mps``: the filter's wind-shift step (companion.gravity.wind_shift; 0: off)."""
+    ``wind_shift_mps``: the filter's wind-shift step (companion.gravity.wind_shift; 0: off). ``bias_step_degph``: the
+    gyro's bias steps by this much at the loss, which the heading's model does not allow for (docs/decisions/0018);
+    ``gyro_walk_degph_rth``: the bias walk the gyro heading states; ``jump_chi2``: the jump guard's (0: off)."""
     lmap = LocalGravityMap.around(load_grid(GRID))
     flight = Flight(seed)
     rng = np.random.default_rng(seed + 100)
@@ -209,7 +214,8 @@ def fly(seed: int, wind_walk: float = 0.1, denial_s: float = DENIAL_S, heading: 
                         ins=InsErrorSpec(air_data=True, wind_walk_mps_rts=wind_walk, init_vel_sigma_mps=1.0,
                                          air_heading=heading == "gyro", gyro_bias_walk_degph_rth=5.0),
                         wind_shift=WindShiftSpec(step_mps=wind_shift_mps))
-    stage = AirDataGravityStage(lmap, cfg, sigma_mgal=1.0, reading_delay_s=15.0, seed=seed, heading=heading)
+    stage = AirDataGravityStage(lmap, cfg, sigma_mgal=1.0, reading_delay_s=15.0, seed=seed, heading=heading,
+                                gyro=GyroHeadingConfig(bias_walk_degph_rth=gyro_walk_degph_rth), jump_chi2=jump_chi2)
     stage.process(FrameInfo(0.0, ORIGIN[0], ORIGIN[1], 0.0))
     dr = AirDataReckoner()  # the held-wind dead reckoning alone, on the same inputs (the compass's heading, offset known)
     yaw_bias = math.radians(0.5)
@@ -230,7 +236,7 @@ def fly(seed: int, wind_walk: float = 0.1, denial_s: float = DENIAL_S, heading: 
         drift = math.radians(yaw_drift_deg) * math.sin(2 * math.pi * (t - t_cut) / 600.0) if t >= t_cut else 0.0
         items.append(Attitude(t, 0.0, 0.0, yaw + yaw_bias + drift + float(rng.normal(0, math.radians(0.3)))))
         items.append(MagField(t, tuple(v + float(rng.normal(0, 0.003)) for v in body_field(yaw))))
-        b = math.radians(gyro_bias_degph + 5.0 * t / 3600.0) / 3600.0
+        b = math.radians(gyro_bias_degph + 5.0 * t / 3600.0 + (bias_step_degph if t >= t_cut else 0.0)) / 3600.0
         items.append(ImuSample(t, (0.0, 0.0, -9.8), (0.0, 0.0, rate + b + float(rng_gyro.normal(0, math.radians(0.05)))),
                                 0))
         if k % 2 == 0:
