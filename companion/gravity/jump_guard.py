@@ -100,7 +100,10 @@ class JumpGuard:
         if self._prev is not None and not t_s > self._prev.t_s:
             return None
         worst = None
-        for e in ([self._prev] if self._prev is not None else []) + list(self._kept):
+        kept = list(self._kept)
+        if self._prev is not None and (not kept or kept[-1] is not self._prev):  # the last reading, unless kept
+            kept.append(self._prev)
+        for e in kept:
             dt = float(t_s) - e.t_s
             u = m - (e.m + e.v * dt)
             try:

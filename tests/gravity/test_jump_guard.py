@@ -90,6 +90,7 @@ def test_reset_restart_off_and_bad_input():
     assert g.observe(12.0, np.array([50_000.0, 0.0]), np.eye(2) * 1e6) is None
     assert g.observe(12.0, np.array([0.0, 0.0]), np.eye(2) * 1e6) is None  # not after the last: ignored
     assert g.observe(13.0, np.array([np.nan, 0.0]), np.eye(2) * 1e6) is None
+    assert g._prev.t_s == 12.0 and len(g._kept) == 1  # refused: not kept to compare with
     off = JumpGuard(chi2=0.0)
     assert off.observe(0.0, np.zeros(2), np.eye(2)) is None and off.observe(1.0, np.full(2, 1e6), np.eye(2)) is None
     with pytest.raises(ValueError):
