@@ -228,6 +228,7 @@ class SequentialGravityFilter:
         self.t_s: float | None = None
         self.tile: MapTile | None = None
         self.P_ins: np.ndarray | None = None
+        self._walk_m2 = 0.0  # the position random walk's variance per axis since the last prior (not in P_ins)
         self._last = None  # (ref_pos, ref_vel, heading, lat) of the previous reading
         self._air_vel: np.ndarray | None = None  # the reference's air velocity at the previous reading (air_heading)
         self._nis = deque()  # (t, nis)
@@ -313,6 +314,7 @@ class SequentialGravityFilter:
         status: Status = "ok"
         if self.t_s is None:  # first reading: prior around the reference
             self.P_ins = prior_covariance(cfg, pos_cov)
+            self._walk_m2 = 0.0
             self.be.init(self.P_ins)
         else:
             self._propagate(float(t_s), ref, vel, speed, air)
@@ -402,6 +404,12 @@ class SequentialGravityFilter:
     def ins_alone_cov_ne_m2(self) -> np.ndarray:
         return self.P_ins[:2, :2].copy()
 
+    def unaided_cov_ne_m2(self) -> np.ndarray:
+        """The position covariance the filter would state had no reading informed it since its last prior: the
+        INS-alone covariance plus the position random walk (``pos_noise_m_rts``) the particles carry. Against the
+        covariance it states, it says how much the readings have taught it (docs/decisions/0019)."""
+        return self.P_ins[:2, :2] + np.eye(2) * self._walk_m2
+
     # -- internals ---------------------------------------------------------------------------------------
     def _propagate(self, t_s: float, ref, vel, speed, air=None) -> None:
         cfg = self.cfg
@@ -420,6 +428,7 @@ class SequentialGravityFilter:
         sig_b = None if self.misfit is None else self.misfit.sigma_mgal(cfg.map_error.sigma_mgal)
         Phi, Qd = discretise(A, continuous_noise(cfg.ins, cfg.map_error, tau_b, sig_b), dt)
         qn = cfg.pos_noise_m_rts**2 * dt
+        self._walk_m2 += qn * nsub
         for _ in range(nsub):
             P_before = self.P_ins[:2, :2].copy()
             self.P_ins = Phi @ self.P_ins @ Phi.T + Qd
@@ -446,6 +455,7 @@ class SequentialGravityFilter:
         map misfit keeps what the readings taught it."""
         _, _, _, _, b_mean, b_var = self.be.moments()
         self.P_ins = prior_covariance(self.cfg, pos_cov)
+        self._walk_m2 = 0.0
         self.be.init(self.P_ins, b_mean=b_mean, b_var=b_var)
         self._holdoff_until = -np.inf
 

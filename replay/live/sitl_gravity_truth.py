@@ -163,7 +163,8 @@ class FilterTrace:
             head_est = float(be.w @ be.xl[:, k])
             head_sig = math.sqrt(float(be.Pl[k, k]) + float(be.w @ (be.xl[:, k] - head_est) ** 2))
         self.rows.append({"t_s": t_s, "ref_err_ne_m": ref_err, "est_err_ne_m": np.asarray(e.err_ne_m, float).copy(),
-                          "h_acc_m": float(e.h_acc_m), "wind_err_ne_mps": wind_err, "wind_est_ne_mps": np.asarray(vel),
+                          "h_acc_m": float(e.h_acc_m),
+                          "unaided_h_m": math.sqrt(float(np.trace(st.filter.unaided_cov_ne_m2()))), "wind_err_ne_mps": wind_err, "wind_est_ne_mps": np.asarray(vel),
                           "wind_sigma_ne_mps": vsig, "heading_err_rad": head_err, "heading_est_rad": head_est,
                           "heading_sigma_rad": head_sig, "status": e.status, "nis_mean": float(e.nis_mean),
                           "reinit_count": int(e.reinit_count), "bimodality": float(e.bimodality),
@@ -176,7 +177,7 @@ class FilterTrace:
         if not self.rows:
             return ["  (no readings on the filter's own)"]
         t = np.array([r["t_s"] for r in self.rows])
-        out = ["  min | own err / h_acc (m) | ref err: true / est (m) | wind err N,E: true / est +- sigma (m/s) | "
+        out = ["  min | own err / h_acc / unaided h_acc (m) | ref err: true / est (m) | wind err N,E: true / est +- sigma (m/s) | "
                "heading err: true / est +- sigma (deg) | status | NIS"]
         nis = np.array([r.get("nis", math.nan) for r in self.rows])
         prev = on_s
@@ -189,7 +190,7 @@ class FilterTrace:
             r = self.rows[i]
             own = float(np.hypot(*(r["est_err_ne_m"] - r["ref_err_ne_m"])))
             we, wm, ws = r["wind_err_ne_mps"], r["wind_est_ne_mps"], r["wind_sigma_ne_mps"]
-            out.append(f"  {m:5.1f} | {own:6.0f} / {r['h_acc_m']:5.0f} | {np.hypot(*r['ref_err_ne_m']):6.0f} / "
+            out.append(f"  {m:5.1f} | {own:6.0f} / {r['h_acc_m']:5.0f} / {r['unaided_h_m']:5.0f} | {np.hypot(*r['ref_err_ne_m']):6.0f} / "
                        f"{np.hypot(*r['est_err_ne_m']):6.0f} | {we[0]:+5.2f},{we[1]:+5.2f} / {wm[0]:+5.2f},{wm[1]:+5.2f} "
                        f"+- {ws[0]:.2f},{ws[1]:.2f} | {math.degrees(r['heading_err_rad']):+5.1f} / "
                        f"{math.degrees(r['heading_est_rad']):+5.1f} +- {math.degrees(r['heading_sigma_rad']):.1f} | "

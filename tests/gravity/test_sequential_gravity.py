@@ -137,6 +137,26 @@ def test_flat_region_reports_no_signal_and_keeps_honest_spread():
     assert np.mean(err[after] <= 2.0 * out.h_acc_m[after]) >= 0.9
 
 
+def test_unaided_covariance_is_what_a_filter_without_information_states():
+    """``unaided_cov_ne_m2``: the covariance the filter would state without readings. On a flat map with readings
+    that carry no velocity error (Eotvos-corrected by the sender) nothing informs the position: the stated covariance
+    grows as the unaided one does, random walk included. On the bumpy map the readings shrink it far below."""
+    flat = _synthetic_map(flat_east_of_m=-1e9)
+    cfg = SeqGravConfig(n_particles=500, pos_noise_m_rts=2.0)
+    tr = make_trajectory(8.0, [Segment(1800.0)], dt_s=1.0, heading0_deg=90.0, start_ne_m=(0.0, -20_000.0))
+    for lmap, lo, hi in ((flat, 0.8, 1.2), (MAP, 0.0, 0.5)):
+        f = SequentialGravityFilter(lmap, cfg, np.random.default_rng(1))
+        rng = np.random.default_rng(2)
+        e = None
+        for i in range(0, len(tr), 5):
+            g = float(lmap.interp_ne(tr.pos_ne_m[i:i + 1, 0], tr.pos_ne_m[i:i + 1, 1])[0]) + rng.normal(0.0, 1.0)
+            e = f.feed(float(tr.t_s[i]), g, tr.pos_ne_m[i], tr.vel_ne_mps[i], 1.0,
+                       ref_cov_ne_m2=np.eye(2) * 25.0 if i == 0 else None, eotvos_from_reference=False)
+        un = f.unaided_cov_ne_m2()
+        assert np.trace(un) > np.trace(f.ins_alone_cov_ne_m2()) + 2 * 2.0**2 * 1700.0  # the walk is in it
+        assert lo <= np.trace(e.cov_ne_m2) / np.trace(un) <= hi
+
+
 def test_divergence_detected_and_reinitialised():
     """Readings that no position on the map explains (a 40 mGal square wave over a flat map, the filter told
     1 mGal): the windowed innovation test fires and the filter re-initialises around the reference."""

@@ -130,7 +130,8 @@ def test_the_filter_trace_puts_the_estimates_beside_the_truth_and_skips_anchored
                                vel_cov_ne_m2ps2=np.eye(2) * 0.04, status="ok", nis_mean=0.5, reinit_count=0,
                                bimodality=0.3, signal_ratio=2.0)
 
-    stage = SimpleNamespace(lmap=lmap, filter=SimpleNamespace(feed=feed, _nis=nis, be=None),
+    stage = SimpleNamespace(lmap=lmap, filter=SimpleNamespace(feed=feed, _nis=nis, be=None,
+                                                               unaided_cov_ne_m2=lambda: np.diag([160.0**2, 120.0**2])),
                             dr=SimpleNamespace(wind_held=np.array([4.0, -4.0]), _yaw=(200.0, float(track.yaw_rad(200.0)) + 0.1)),
                             cfg=SimpleNamespace(ins=SimpleNamespace(air_heading=False)))
     tr = tru.FilterTrace(stage, track, wind)
@@ -147,4 +148,4 @@ def test_the_filter_trace_puts_the_estimates_beside_the_truth_and_skips_anchored
     lines = tr.lines(100.0, [100.0 / 60.0])
     assert len(lines) == 2 and "| ok | 0.500" in lines[1]
     own = math.hypot(30.0 - 50.0, -40.0 + 30.0)  # the filter's position error: estimated minus true reference error
-    assert f"{own:6.0f} /   100" in lines[1]
+    assert f"{own:6.0f} /   100 /   200 |" in lines[1]  # stated, and what it would state without readings
