@@ -133,6 +133,10 @@ class GravityConfig:
     # in a GNSS outage the stage's own state replaces the navigator's towards the injector, nothing goes back)
     reference: str = "navigator"
     air_wind_window_s: float = 300.0  # the wind held at a GNSS loss: the mean over this long before it
+    # a boat: the reference's speed is its water-speed log, NAMED_VALUE_FLOAT of this name (m/s, companion.mavlink
+    # .speed_log), not VFR_HUD's airspeed (on ArduRover the GPS's ground speed: the companion's own fixes in an
+    # outage); the current takes the wind's place; "": the airspeed
+    air_speed_log: str = ""
     # the velocity its states carry is low-passed over this long (s; 0: raw): the air velocity's pitot noise and gusts
     # step it several m/s between states otherwise (docs/decisions/0016-air-data-velocity.md)
     air_output_tau_s: float = 1.0
@@ -423,6 +427,9 @@ def _validate_gravity(g: GravityConfig) -> None:
                           "corrects a reading with the navigator's velocity)")
     if not 1 <= len(g.named_value) <= 10:
         raise ConfigError("gravity.named_value must be 1-10 characters (NAMED_VALUE_FLOAT.name)")
+    if len(g.air_speed_log) > 10 or g.air_speed_log == g.named_value:
+        raise ConfigError("gravity.air_speed_log must be a NAMED_VALUE_FLOAT name of 0-10 characters other than "
+                          "gravity.named_value")
     if not g.sigma_mgal > 0:
         raise ConfigError(f"gravity.sigma_mgal must be > 0, got {g.sigma_mgal:g}")
     if g.seq_attitude_tau_s > 0 and not (g.seq_attitude_tilt_sigma_rad > 0 and g.seq_attitude_heading_sigma_rad > 0):

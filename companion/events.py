@@ -148,6 +148,15 @@ class AirData(Event):
 
 
 @dataclass(frozen=True, slots=True)
+class WaterSpeed(Event):
+    """A vessel's speed log: its speed through the water along the keel, m/s (on MAVLink a NAMED_VALUE_FLOAT of a
+    configured name: companion.mavlink.speed_log). A boat's counterpart of AirData."""
+
+    speed_mps: float
+    topic: ClassVar[str] = "/input/water_speed"
+
+
+@dataclass(frozen=True, slots=True)
 class MagField(Event):
     """The autopilot's first compass, its calibrated field in the body frame (MAVLink RAW_IMU x/y/zmag), gauss."""
 
@@ -258,6 +267,7 @@ EVENT_TYPES: tuple[type[Event], ...] = (
     GnssFix,
     Attitude,
     AirData,
+    WaterSpeed,
     MagField,
     SystemTime,
     Reboot,

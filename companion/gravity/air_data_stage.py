@@ -2,17 +2,18 @@
 
     ... --> Navigator --> FusedState --> AirDataGravityStage --> (its own state in a GNSS outage) --> Injector
 
-On a fixed wing the navigator's INS on the autopilot's MEMS IMU does not hold through a long GNSS loss
+On a fixed wing (and a boat) the navigator's INS on the autopilot's MEMS IMU does not hold through a long GNSS loss
 (docs/decisions/0012). This stage keeps a reference of its own, independent of the navigator and of anything the
 companion sends: the receiver's fixes while it has them, then airspeed along the heading plus the wind learnt over the
-GNSS period (companion.gravity.air_data). The sequential filter (companion.gravity.sequential, ``InsErrorSpec.air_data``)
+GNSS period (companion.gravity.air_data); on a boat (``speed_log``) its water-speed log along the heading plus the
+current learnt the same way. The sequential filter (companion.gravity.sequential, ``InsErrorSpec.air_data``)
 estimates that reference's position error and the held wind's error from every gravimeter reading; while GNSS is good
 it is pinned to the receiver and learns the map misfit. In an outage, once the filter has estimated on its own, each
 navigator state is replaced by this stage's (the navigator's own is withheld from the stages after it): position and
 horizontal velocity (low-passed: AirDataReckoner.output_velocity) corrected by the filter, both at the state's own
 time, covariance from the filter, altitude the autopilot's, ``measurement``
 ``gravity_airdata`` while the filter's covariance stands (AIDED: an aid the autopilot lacks: companion.inject.gps_input's
-``outage_aids``), else ``airdata``. Nothing goes back to the navigator.
+``outage_aids``), else ``airdata`` -- on a boat ``speed_log``, also an aid: the autopilot has no water-speed log. Nothing goes back to the navigator.
 
 Feedback: the reference takes the autopilot's airspeed (pitot) and a heading. Airspeed does not depend on the EKF;
 ATTITUDE yaw is EKF3's, which fuses the fixes sent (through its covariance: measured in replay.live.sitl_gravity,
@@ -33,7 +34,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from companion.events import (Attitude, AirData, AutopilotAltitude, Event, FixType, GnssFix, GravityReading, ImuSample,
-                               MagField)
+                               MagField, WaterSpeed)
 from companion.gravity.air_data import AirDataConfig, AirDataReckoner, HeadingOffset, mag_heading_rad, tas_from_eas_mps
 from companion.gravity.gyro_heading import DEGPH, GyroHeading, GyroHeadingConfig
 from companion.gravity.jump_guard import CHI2_2_99, JumpGuard
@@ -47,6 +48,9 @@ from companion.pipeline.stage import Stage
 
 #: the aid name an air-data state carries while the gravity filter tracks (companion.inject.gps_input outage_aids)
 AID = "gravity_airdata"
+#: the aid name of a boat's state that the gravity filter does not (yet) inform: its dead reckoning on a water-speed
+#: log, which the autopilot lacks (ArduRover has no such sensor) and which it cannot feed back into
+SPEED_LOG_AID = "speed_log"
 #: filter states whose covariance stands (tracking; or no map signal / two modes for now, the covariance growing or
 #: spanning them): the state is an aid; "reinit" and "off_map" are not
 AIDED = frozenset({"ok", "no_signal", "multimodal"})
@@ -79,12 +83,13 @@ class AirDataGravityStage(Stage):
                  seed: int = 0, receiver_instance: int = 0, gnss_timeout_s: float = 0.6,
                  speed_sigma_floor_mps: float = 0.0, heading: str = "attitude",
                  gyro: GyroHeadingConfig | None = None, gyro_imu_index: int = 0,
-                 jump_chi2: float = CHI2_2_99) -> None:
+                 jump_chi2: float = CHI2_2_99, speed_log: bool = False) -> None:
         if heading not in HEADINGS:
             raise ValueError(f"heading must be one of {', '.join(HEADINGS)}, not {heading!r}")
         if (heading == "gyro") != cfg.ins.air_heading:
             raise ValueError("heading = \"gyro\" goes with SeqGravConfig.ins.air_heading = True (and only it)")
         self.heading = heading
+        self.speed_log = bool(speed_log)  # the speed through the medium is a boat's log (WaterSpeed), not AirData
         self.gyro = GyroHeading(gyro) if heading == "gyro" else None
         self.gyro_imu_index = int(gyro_imu_index)
         self._gyro_at_loss = ""
@@ -115,6 +120,7 @@ class AirDataGravityStage(Stage):
         self._outage_t: float | None = None  # the last good fix before the outage in progress
         self._pending: deque[GravityReading] = deque()
         self._est: SeqGravEstimate | None = None  # the filter's last estimate on its own in this outage
+        self._anchored_est: SeqGravEstimate | None = None  # ... and its last one pinned to GNSS
         self.jumps = JumpGuard(jump_chi2)  # adds a jump the filter's covariance did not allow to what is stated
         self._withhold = False  # the navigator's state just seen is replaced (passes says False)
         self.n_readings = self.n_states = 0
@@ -147,8 +153,11 @@ class AirDataGravityStage(Stage):
         elif isinstance(item, MagField):
             self._mag(item)
         elif isinstance(item, AirData):
-            if self._alt_m is not None:
+            if self._alt_m is not None and not self.speed_log:
                 self.dr.airspeed(item.t_s, tas_from_eas_mps(item.airspeed_mps, self._alt_m))
+        elif isinstance(item, WaterSpeed):
+            if self.speed_log:  # through the water: no density correction; the current takes the wind's place
+                self.dr.airspeed(item.t_s, item.speed_mps)
         elif isinstance(item, AutopilotAltitude):
             if math.isfinite(item.alt_msl_m):
                 self._alt_m = float(item.alt_msl_m)
@@ -262,7 +271,9 @@ class AirDataGravityStage(Stage):
             return []
         self.n_readings += 1
         self.status_counts[e.status] += 1
-        if not anchored:
+        if anchored:
+            self._anchored_est = e
+        else:
             self._est = e
             if e.status == "reinit":
                 self.jumps.restart()
@@ -287,6 +298,11 @@ class AirDataGravityStage(Stage):
         self._withhold = False
         out = self._readings(s.t_s)
         e = self._est
+        # a boat's log carries it from the loss: until the first reading after it (a reading describes the vehicle
+        # reading_delay_s before its stamp) the state is the reckoning from the last GNSS-pinned estimate
+        early = e is None and self.speed_log and self._outage_t is not None
+        if early:
+            e = self._anchored_est
         if e is None or not self._receiver_out(s.t_s) or self.dr.t is None or not self.dr.advance(s.t_s):
             return out
         # at the state's own time: a reading stamped after it may already have carried the reckoning further
@@ -296,11 +312,12 @@ class AirDataGravityStage(Stage):
         lat, lon = ref[0], ref[1]
         vn, ve = float(v_out[0]), float(v_out[1])
         ne, _ = self._map_state(lat, lon, vn, ve)
-        dt = max(s.t_s - e.t_s, 0.0)
+        # (early: the pinned estimate describes the reference at the loss, the reckoning's error grows from there)
+        dt = max(s.t_s - (self._outage_t if early else e.t_s), 0.0)
         dv = e.vel_err_ne_mps if e.vel_err_ne_mps is not None else np.zeros(2)
         err = e.err_ne_m + dv * dt
         cov = e.cov_ne_m2 + (e.vel_cov_ne_m2ps2 * dt * dt if e.vel_cov_ne_m2ps2 is not None else 0.0)
-        cov = cov + self.jumps.cov_ne_m2
+        cov = cov + self.jumps.cov_ne_m2 + np.eye(2) * (self.filter.cfg.pos_noise_m_rts**2 * dt if early else 0.0)
         lon_o, lat_o = self.lmap.ne_to_xy((ne - err)[0], (ne - err)[1])
         v_n, v_e = vn - float(dv[0]), ve - float(dv[1])
         pv = np.diag(e.vel_cov_ne_m2ps2) if e.vel_cov_ne_m2ps2 is not None else np.full(2, 1e4)
@@ -316,7 +333,9 @@ class AirDataGravityStage(Stage):
         st = AirDataState(**{f.name: getattr(s, f.name) for f in fields(FusedState)})
         st = replace(st, lat_deg=float(lat_o), lon_deg=float(lon_o), alt_msl_m=float(alt), vel_n_mps=v_n,
                      vel_e_mps=v_e, vel_d_mps=0.0, yaw_rad=math.atan2(v_e, v_n), cov_diag=tuple(cd),
-                     sigma_h_m=math.sqrt(max(float(np.trace(cov)), 1e-6)), measurement=AID if e.status in AIDED else "airdata")
+                     sigma_h_m=math.sqrt(max(float(np.trace(cov)), 1e-6)),
+                     measurement=(AID if e.status in AIDED and not early
+                                  else SPEED_LOG_AID if self.speed_log else "airdata"))
         return out + [st]
 
     # -- reporting ---------------------------------------------------------------------------------

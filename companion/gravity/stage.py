@@ -358,7 +358,9 @@ def live_gravity_stage(config) -> Stage:
         from companion.gravity.gyro_heading import GYRO_SOURCES, GyroHeadingConfig
         from companion.gravity.sequential_stage import seq_config_of
 
-        air = AirDataConfig(wind_window_s=config.air_wind_window_s, output_tau_s=config.air_output_tau_s)
+        # a log reads ~0 at rest where a pitot reads noise: a boat's reference moves from a walking pace
+        air = AirDataConfig(wind_window_s=config.air_wind_window_s, output_tau_s=config.air_output_tau_s,
+                            **({"min_airspeed_mps": 0.3} if config.air_speed_log else {}))
         return AirDataGravityStage(lmap, seq_config_of(config), air,
                                    sigma_mgal=config.sigma_mgal, reading_delay_s=config.reading_delay_s,
                                    source=f"gravity:{config.named_value}:air_data",
@@ -368,7 +370,7 @@ def live_gravity_stage(config) -> Stage:
                                                           bias_walk_degph_rth=config.air_gyro_bias_walk_degph_rth,
                                                           arw_deg_rth=config.air_gyro_arw_deg_rth),
                                    gyro_imu_index=GYRO_SOURCES[config.air_gyro_source],
-                                   jump_chi2=config.seq_jump_chi2)
+                                   jump_chi2=config.seq_jump_chi2, speed_log=bool(config.air_speed_log))
     if config.matcher == "sequential":
         from companion.gravity.sequential_stage import SequentialGravityStage, seq_config_of
 

@@ -91,7 +91,9 @@ class InjectConfig:
     # says it is disarmed (its arming check needs a 3D fix on every configured GPS); nothing while armed beside a
     # healthy receiver. With no HEARTBEAT (a dataflash log) the armed state is unknown: only the outage counts.
     activate: str = "backup"
-    outage_aids: str = "position_fix+gravity_airdata"  # '+'-separated FusedState.measurement names that count as aid in an outage
+    # '+'-separated FusedState.measurement names that count as aid in an outage: a gravity fix, the air-data gravity
+    # state, a boat's dead reckoning on its water-speed log (companion.gravity.air_data_stage)
+    outage_aids: str = "position_fix+gravity_airdata+speed_log"
     aid_valid_s: float = 300.0  # an aid keeps the fix type this long (the covariance grows and degrades it meanwhile)
     # backup, vehicle armed, receiver healthy: send the state with its fix type (True) or as no fix (False). ArduPilot
     # checks every GPS for a 3D fix at arming only; in flight, GPS_AUTO_SWITCH = 4 switches to this instance the moment

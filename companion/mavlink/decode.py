@@ -80,19 +80,22 @@ def _finite(*vals: float) -> bool:
 class MavlinkDecoder:
     """Stateful decoder: feed ``decode(msg, recv_s)``; it returns zero or more events."""
 
-    def __init__(self, target_system: int | None = None, target_component: int | None = None, *, gravity=None) -> None:
+    def __init__(self, target_system: int | None = None, target_component: int | None = None, *, gravity=None,
+                 speed_log=None) -> None:
         self.clock = VehicleClock()
         self.target_system = target_system
         self.target_component = target_component
         #: a companion.mavlink.gravimeter.NamedValueGravityDecoder (None: gravimeter readings are not decoded)
         self.gravity = gravity
+        #: a companion.mavlink.speed_log.NamedValueSpeedLogDecoder (None: no water-speed log)
+        self.speed_log = speed_log
         self._mag_t_s = -math.inf  # the last MagField sent (RAW_IMU compass, MAG_PERIOD_S apart)
         #: message type -> handler; and the message types taken from any component of the autopilot's system
         #: rather than from the autopilot component alone (source policy)
         self.handlers = dict(_HANDLERS)
         self.from_system: set[str] = set()
-        if gravity is not None:
-            # an autopilot Lua script sends as the autopilot, a gravimeter as its own component of the vehicle
+        if gravity is not None or speed_log is not None:
+            # an autopilot Lua script sends as the autopilot, a sensor as its own component of the vehicle
             self.handlers["NAMED_VALUE_FLOAT"] = MavlinkDecoder._named_value
             self.from_system.add("NAMED_VALUE_FLOAT")
         self.dropped: Counter[str] = Counter()
@@ -299,13 +302,16 @@ class MavlinkDecoder:
             self.dropped["GLOBAL_POSITION_INT position out of range"] += 1
 
     def _named_value(self, msg, recv_s: float, out: list[Event]) -> None:
-        """A gravimeter's NAMED_VALUE_FLOAT -> GravityReading on the vehicle clock (time_boot_ms; 0: receive time)."""
-        v = self.gravity.value(msg)
-        if v is None:
+        """A gravimeter's or a speed log's NAMED_VALUE_FLOAT -> GravityReading / WaterSpeed on the vehicle clock
+        (time_boot_ms; 0: receive time)."""
+        for sensor in (self.gravity, self.speed_log):
+            v = None if sensor is None else sensor.value(msg)
+            if v is None:
+                continue
+            t_s = self._stamp(units.s_from_ms(msg.time_boot_ms) if msg.time_boot_ms else None, recv_s, out)
+            if t_s is not None:
+                out.append(sensor.reading(t_s, v))
             return
-        t_s = self._stamp(units.s_from_ms(msg.time_boot_ms) if msg.time_boot_ms else None, recv_s, out)
-        if t_s is not None:
-            out.append(self.gravity.reading(t_s, v))
 
 
 #: Handlers of the messages every decoder takes from the autopilot component (more per decoder: `handlers`).

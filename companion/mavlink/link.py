@@ -99,7 +99,7 @@ class MavlinkLink:
     """The autopilot link. ``start(loop, put)`` runs the reader thread; ``put`` gets Batch and LinkStatus."""
 
     def __init__(self, link: LinkConfig, streams: StreamConfig, *, clock: Callable[[], float] = time.monotonic,
-                 gravity=None) -> None:
+                 gravity=None, speed_log=None) -> None:
         self.config = link
         self.streams = streams
         self.spec = parse_url(link.connect, link.baud)
@@ -107,8 +107,10 @@ class MavlinkLink:
         self.clock = clock
         # a configured target system without a component means its autopilot (MAV_COMP_ID_AUTOPILOT1)
         ts = link.target_system or None
-        # gravity: a NamedValueGravityDecoder for gravimeter readings (companion.mavlink.gravimeter), or None
-        self.decoder = MavlinkDecoder(ts, (link.target_component or mavlink2.MAV_COMP_ID_AUTOPILOT1) if ts else None, gravity=gravity)
+        # gravity: a NamedValueGravityDecoder for gravimeter readings (companion.mavlink.gravimeter), or None;
+        # speed_log: a NamedValueSpeedLogDecoder for a boat's water speed (companion.mavlink.speed_log), or None
+        self.decoder = MavlinkDecoder(ts, (link.target_component or mavlink2.MAV_COMP_ID_AUTOPILOT1) if ts else None,
+                                      gravity=gravity, speed_log=speed_log)
         self.mav = self._new_mav()
         self.counts: Counter[str] = Counter()  # link event counts: opened, lost, reboot, stream_requests, ...
         self.messages_in = 0

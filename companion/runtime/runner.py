@@ -93,7 +93,7 @@ class Runtime:
         #: a companion.signals.StopSignals caught from the command's start (a signal before the loop runs stops it)
         self.stop_signals = stop_signals
         self.sink = sink
-        gravity, stages = None, []
+        gravity, speed_log, stages = None, None, []
         self.gravity_stage = None
         if config.gravity.map:  # gravity-aided: readings from the link, fixes into the navigator
             from companion.gravity.stage import live_gravity_stage
@@ -103,8 +103,12 @@ class Runtime:
             stages.append(self.gravity_stage)
             gravity = NamedValueGravityDecoder(config.gravity.named_value, config.gravity.sigma_mgal,
                                                eotvos_corrected=config.gravity.eotvos_corrected)
+            if config.gravity.air_speed_log:
+                from companion.mavlink.speed_log import NamedValueSpeedLogDecoder
+
+                speed_log = NamedValueSpeedLogDecoder(config.gravity.air_speed_log)
         nav_config = nav_config or config.nav_config()
-        self.link = MavlinkLink(config.link, config.streams, gravity=gravity)
+        self.link = MavlinkLink(config.link, config.streams, gravity=gravity, speed_log=speed_log)
         sender = self.link.send if config.inject.mode == "inject" else None
         self.injector = Injector(config.inject, sender=sender, trust=config.trust)
         self.injector.on_sent = self._on_sent

@@ -21,11 +21,11 @@ import math
 from collections import deque
 
 from companion.events import (AirData, Attitude, AutopilotAltitude, AutopilotPosition, Event, GnssFix, ImuSample,
-                              MagField)
+                              MagField, WaterSpeed)
 
 #: the event types that may wait for the next output: the streams the navigator takes, in its event order, and the
-#: air data and compass field the air-data gravity stage takes (it acts on the navigator's outputs only)
-MAY_WAIT = (ImuSample, Attitude, GnssFix, AutopilotPosition, AutopilotAltitude, AirData, MagField)
+#: air data, water speed and compass field the air-data gravity stage takes (it acts on the navigator's outputs only)
+MAY_WAIT = (ImuSample, Attitude, GnssFix, AutopilotPosition, AutopilotAltitude, AirData, WaterSpeed, MagField)
 
 
 #: event times kept to find the first after a tick: this far (s) behind the newest, past the reorder window

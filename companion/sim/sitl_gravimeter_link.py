@@ -1,7 +1,8 @@
 """A simulated gravimeter as its own component on an ArduPilot SITL vehicle: it reads the simulator's truth
 (SIMSTATE) from a spare SITL MAVLink port and sends its readings as NAMED_VALUE_FLOAT ``GRAV`` (mGal) with the
 autopilot's system id, which ArduPilot routes to its other links -- where the companion takes them like any
-gravimeter's (companion.mavlink.gravimeter).
+gravimeter's (companion.mavlink.gravimeter). On a boat, ``--speed-log NAME`` adds a water-speed log
+(companion.sim.speed_log) the same way (companion.mavlink.speed_log).
 
     python -m companion.sim.sitl_gravimeter_link --connect tcp:127.0.0.1:5763 --map GRID.nc --seed 1 --record g.jsonl
 
@@ -26,6 +27,7 @@ import numpy as np
 from companion.gravity.maps import LocalGravityMap, load_grid
 from companion.mavlink.gravimeter import DEFAULT_NAMED_VALUE
 from companion.sim.gravity_residuals import ship_minus_satellite_mgal
+from companion.sim.speed_log import SpeedLog, SpeedLogSpec
 from companion.sim.truth_gravimeter import GravimeterSpec, TruthGravimeter
 
 #: MAV_COMP_ID_PERIPHERAL: the gravimeter speaks as a peripheral of the vehicle's system
@@ -69,6 +71,14 @@ class GravimeterOnLink:
         return [(int(round(t * 1000.0)), v)]
 
 
+def speed_log_values(log: SpeedLog, gl: GravimeterOnLink, m) -> list[tuple[int, float]]:
+    """The speed log's (time_boot_ms, m/s) values due after ``gl`` took ``m``: a SIMSTATE with a position, stamped
+    as the gravimeter stamps it (the newest time_boot_ms seen before it)."""
+    if m.get_type() != "SIMSTATE" or gl.t_boot_s is None or (m.lat == 0 and m.lng == 0):
+        return []
+    return [(int(round(t * 1000.0)), v) for t, v in log.truth(gl.t_boot_s, m.lat * 1e-7, m.lng * 1e-7)]
+
+
 def build_meter(map_path: str, seed: int, spec: GravimeterSpec, origin: tuple[float, float] | None = None) -> TruthGravimeter:
     gmap = load_grid(map_path)
     lmap = LocalGravityMap.around(gmap)
@@ -104,12 +114,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--system-id", type=int, default=1, help="the vehicle's system id")
     ap.add_argument("--record", default=None, help="JSON lines of every reading with its truth")
     ap.add_argument("--rate-hz", type=float, default=10.0, help="SIMSTATE/ATTITUDE rate asked of the autopilot")
+    ap.add_argument("--speed-log", metavar="NAME", default="",
+                    help="also a boat's water-speed log (companion.sim.speed_log), sent as NAMED_VALUE_FLOAT NAME (m/s)")
+    ap.add_argument("--speed-log-scale-sigma", type=float, default=SpeedLogSpec.scale_sigma)
+    ap.add_argument("--speed-log-sigma-mps", type=float, default=SpeedLogSpec.white_sigma_mps)
     a = ap.parse_args(argv)
+    if len(a.speed_log) > 10 or a.speed_log == a.name:
+        ap.error("--speed-log: a NAMED_VALUE_FLOAT name of 1-10 characters other than --name")
     spec = GravimeterSpec(a.sigma_mgal, a.bias_sigma_mgal, a.drift_sigma_mgal_per_h, a.window_s, not a.no_eotvos,
                           not a.no_misfit)
     origin = tuple(float(x) for x in a.origin.split(",")) if a.origin else None
     meter = build_meter(a.map, a.seed, spec, origin)
     gl = GravimeterOnLink(meter, a.period_s)
+    # its own generator, derived from the seed: the gravimeter's draws are the same with or without the log
+    slog = (SpeedLog(SpeedLogSpec(scale_sigma=a.speed_log_scale_sigma, white_sigma_mps=a.speed_log_sigma_mps),
+                     np.random.default_rng([a.seed, 1])) if a.speed_log else None)
 
     from pymavlink import mavutil
 
@@ -131,7 +150,8 @@ def main(argv: list[str] | None = None) -> int:
     mav = link.mav
     mav.srcSystem, mav.srcComponent = a.system_id, GRAVIMETER_COMPONENT
     print(f"gravimeter: {a.connect} bias {meter.bias_mgal:+.2f} mGal drift {meter.drift_mgal_per_s * 3600:+.2f} mGal/h "
-          f"window {spec.window_s:g} s", flush=True)
+          f"window {spec.window_s:g} s" + (f"; speed log {a.speed_log}: scale {slog.scale:.4f}, bias "
+                                           f"{slog.bias_mps:+.3f} m/s" if slog is not None else ""), flush=True)
     asked = 0.0
     try:
         while not stop["v"]:
@@ -151,6 +171,9 @@ def main(argv: list[str] | None = None) -> int:
                     lat, lon = gl.last_truth
                     rec.write(json.dumps({"t_s": tb_ms / 1000.0, "mgal": v, "lat": lat, "lon": lon,
                                           "map_mgal": meter.truth_value_mgal(lat, lon)}) + "\n")
+            if slog is not None:
+                for tb_ms, v in speed_log_values(slog, gl, m):
+                    mav.named_value_float_send(tb_ms, a.speed_log.encode(), float(v))
     except (ConnectionError, OSError) as e:
         print(f"gravimeter: link closed: {e}", flush=True)
     finally:

@@ -2,10 +2,12 @@
 ``--healthy-min``, denied (SIM_GPS1_ENABLE 0) for ``--denial-min`` in a wind that turns, then back for ``--back-min``.
 
 * alone: ArduPilot at its documented best for a GNSS loss (Plane: airspeed sensor fused, EKF3 wind estimation and
-  dead reckoning on air data; Rover: its defaults), the same mission and weather;
+  dead reckoning on air data; Rover: its defaults, whose EKF failsafe holds the boat), the same mission and weather;
 * companion: the same plus ``companion run`` as GPS2 (docs/ardupilot.md), its sequential gravity filter on the
   readings of a simulated gravimeter (companion.sim.sitl_gravimeter_link: SITL's truth -> NAMED_VALUE_FLOAT GRAV
-  routed by the autopilot), its gravity-aided solution sent as 3D GPS_INPUT with its honest h_acc.
+  routed by the autopilot), its gravity-aided solution sent as 3D GPS_INPUT with its honest h_acc; on the boat its
+  reference is a simulated water-speed log on the same link (NAMED_VALUE_FLOAT WSPD), and EKF3's GPS accuracy checks
+  are off for GPS2's fixes to be used (COMPANION_VEHICLE_PARAMS).
 
     nice -n 5 python -m replay.live.sitl_gravity --sitl-bin PATH/arduplane --vehicle plane \\
         --map ../shared/data/gravity/AK_gulf_grav.nc --origin 56.2,-143.0 --denial-min 60 --seed 1 --speedup 4 \\
@@ -66,6 +68,14 @@ IMU_PARAMS = {"plane": {"SIM_GYR1_BIAS_X": 1.0e-4, "SIM_GYR1_BIAS_Y": -1.5e-4, "
 #: the companion arm: GPS2 = MAVLink GPS (the companion), GPS1 primary while it has a 3D fix
 COMPANION_PARAMS = {"GPS2_TYPE": 14, "GPS_AUTO_SWITCH": 4, "GPS_PRIMARY": 0, "SERIAL1_PROTOCOL": 2,
                     "EK3_SRC1_POSXY": 3, "EK3_SRC1_VELXY": 3, "EK3_SRC1_POSZ": 1}
+#: ... and per vehicle. Rover: EKF3 re-runs its GPS quality checks (AP_NavEKF3_VehicleStatus calcGpsGoodToAlign) after
+#: a GPS loss before it uses a GPS again; the companion's fixes state hundreds of metres (checked against 5 m), a
+#: speed accuracy of 50 m/s (against 1 m/s) and the HDOP of those, so without these bits EKF3 never takes them and
+#: the boat's EKF failsafe holds it where it is. EK3_GPS_CHECK 17 keeps the default's satellite and yaw checks (31:
+#: bits 0-4) and drops its accuracy (POS_ERR, SPD_ERR) and HDOP ones.
+COMPANION_VEHICLE_PARAMS = {"plane": {}, "rover": {"EK3_GPS_CHECK": 17}}
+#: the boat's water-speed log (companion.sim.speed_log through the gravimeter's link): its NAMED_VALUE_FLOAT name
+SPEED_LOG = "WSPD"
 #: the companion's settings: the recommended set-up (replay.live.sitl.COMPANION_SETS) in ``backup`` (in the outage a fix
 #: only while gravity aids it), the sequential gravity filter on air-data dead reckoning (companion.gravity.air_data_stage:
 #: the navigator's INS on ArduPlane's MEMS IMU does not hold, docs/decisions/0012), its heading the autopilot's gyro
@@ -99,14 +109,16 @@ def arm_params(a, arm: str) -> dict[str, float]:
     p = {**VEHICLE_PARAMS[a.vehicle], **IMU_PARAMS[a.vehicle], **a.schedule.sim_params()}
     if arm == "companion":
         p.update(COMPANION_PARAMS)
+        p.update(COMPANION_VEHICLE_PARAMS[a.vehicle])
     for kv in a.param or []:
         k, v = kv.split("=", 1)
         p[k] = float(v)
     return p
 
 
-#: ArduPlane's 50 Hz main loop refuses a 50 Hz RAW_IMU stream ("Requested rate ... too fast"): ask for 25 Hz
-VEHICLE_SETS = {"plane": ["streams.RAW_IMU=25"], "rover": []}
+#: ArduPlane's and ArduRover's 50 Hz main loops refuse a 50 Hz RAW_IMU stream ("Requested rate ... too fast"): ask
+#: for 25 Hz; the boat's reference speed is its log (on ArduRover VFR_HUD.airspeed is the GPS's ground speed)
+VEHICLE_SETS = {"plane": ["streams.RAW_IMU=25"], "rover": ["streams.RAW_IMU=25", f'gravity.air_speed_log="{SPEED_LOG}"']}
 
 
 def companion_sets(a) -> list[str]:
@@ -178,7 +190,7 @@ def fly(a, arm: str) -> dict:
         grav = subprocess.Popen(
             [sys.executable, "-m", "companion.sim.sitl_gravimeter_link", "--connect", f"tcp:127.0.0.1:{base + 3}",
              "--map", str(a.map_path), "--seed", str(a.seed), "--record", str(work / "gravimeter.jsonl")]
-            + (["--origin", a.origin] if a.local_map else []),
+            + (["--origin", a.origin] if a.local_map else []) + (["--speed-log", SPEED_LOG] if a.vehicle == "rover" else []),
             cwd=REPO, stdout=open(work / "gravimeter.out", "w"), stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
         if arm == "companion":
             ccmd = [sys.executable, "-m", "companion.cli", "run", "--connect", f"tcp:127.0.0.1:{base + 2}", "--inject",

@@ -156,9 +156,13 @@ def write_results(a, summary: dict, table_text: str, png, results_dir) -> None:
         f"along the lines: STD {run['map_along_survey']['std_mgal']:.1f} mGal, mean gradient "
         f"{run['map_along_survey']['grad_mgal_per_km']:.2f} mGal/km. Schedule from the survey start: GNSS "
         f"{sc['healthy_min']:g} min, denied (SIM_GPS1_ENABLE 0) {sc['denial_min']:g} min, back {sc['back_min']:g} "
-        f"min. Weather: SIM_WIND_SPD {sc['wind_mps']:g} m/s from {sc['wind_dir_deg']:g} deg, SIM_WIND_TURB "
-        f"{sc['turb_mps']:g} m/s, the wind turning by {sc['wind_turn_deg']:g} deg every {sc['wind_turn_min']:g} min of "
-        "the denial; SITL's airspeed sensor with its default noise. Gravimeter (companion.sim.sitl_gravimeter_link, "
+        + (f"min. Weather: SIM_WIND_SPD {sc['wind_mps']:g} m/s from {sc['wind_dir_deg']:g} deg, SIM_WIND_TURB "
+           f"{sc['turb_mps']:g} m/s, the wind turning by {sc['wind_turn_deg']:g} deg every {sc['wind_turn_min']:g} "
+           "min of the denial; SITL's airspeed sensor with its default noise." if a.vehicle != "rover" else
+           "min. Water: SITL's boat is moved by neither wind nor current (SIM_Rover has none), so the water is "
+           "still; its speed log (companion.sim.speed_log, NAMED_VALUE_FLOAT WSPD on the gravimeter's link) reads "
+           "the true speed with a seeded 1 % scale error, a 0.02 m/s bias and 0.05 m/s noise, 2 Hz.")
+        + " Gravimeter (companion.sim.sitl_gravimeter_link, "
         "on SERIAL2, its NAMED_VALUE_FLOAT routed by the autopilot): the map at SITL's true position + the real "
         "ship-minus-satellite misfit + 1 mGal white noise + the Eotvos term at the true velocity + a seeded bias "
         "(2 mGal sigma) and drift (0.5 mGal/h sigma), filtered over 30 s, 1 Hz.",

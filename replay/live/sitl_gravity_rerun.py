@@ -31,7 +31,8 @@ from replay.live import sitl_core as core
 
 #: the recorded inputs of a live companion (companion.pipeline.core topics) and their event types
 INPUTS = {"/input/imu": ev.ImuSample, "/input/imu1": ev.ImuSample, "/input/imu2": ev.ImuSample, "/input/imu3": ev.ImuSample,
-          "/input/gnss": ev.GnssFix, "/input/gnss1": ev.GnssFix, "/input/attitude": ev.Attitude, "/input/air_data": ev.AirData, "/input/mag": ev.MagField,
+          "/input/gnss": ev.GnssFix, "/input/gnss1": ev.GnssFix, "/input/attitude": ev.Attitude, "/input/air_data": ev.AirData,
+          "/input/water_speed": ev.WaterSpeed, "/input/mag": ev.MagField,
           "/input/heartbeat": ev.Heartbeat, "/input/system_time": ev.SystemTime,
           "/input/altitude": ev.AutopilotAltitude, "/input/autopilot_position": ev.AutopilotPosition,
           "/input/gravity": ev.GravityReading}
