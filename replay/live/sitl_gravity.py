@@ -50,13 +50,14 @@ MODEL = {"plane": "plane", "rover": "motorboat"}
 DEFAULTS = {"plane": ["Tools/autotest/models/plane.parm"],
             "rover": ["Tools/autotest/default_params/rover.parm", "Tools/autotest/default_params/motorboat.parm"]}
 #: every arm: EKF3 alone (plane.parm enables EKF2), no RC/GCS failsafe (the harness has no RC), GPS1 on, SERIAL2 for
-#: the gravimeter; Plane: the airspeed sensor (SITL's) fused, EKF3 estimating wind
+#: the gravimeter; Plane: the airspeed sensor (SITL's) fused, EKF3 estimating wind; Rover: no SmartRTL (an hour's
+#: survey fills its path buffer, 300 points, and it switches itself off with a warning)
 VEHICLE_PARAMS = {
     "plane": {"AHRS_EKF_TYPE": 3, "EK2_ENABLE": 0, "EK3_ENABLE": 1, "ARSPD_TYPE": 100, "ARSPD_USE": 1,
               "EK3_WIND_PSCALE": 1.0, "AIRSPEED_CRUISE": 22.0, "THR_FAILSAFE": 0, "FS_LONG_ACTN": 0,
               "FS_SHORT_ACTN": 0, "SIM_GPS1_ENABLE": 1, "SERIAL2_PROTOCOL": 2},
     "rover": {"AHRS_EKF_TYPE": 3, "EK3_ENABLE": 1, "WP_SPEED": 8.0, "CRUISE_SPEED": 8.0, "FS_THR_ENABLE": 0,
-              "FS_GCS_ENABLE": 0, "SIM_GPS1_ENABLE": 1, "SERIAL2_PROTOCOL": 2},
+              "FS_GCS_ENABLE": 0, "SIM_GPS1_ENABLE": 1, "SERIAL2_PROTOCOL": 2, "SRTL_POINTS": 0},
 }
 #: Plane, both arms: a MEMS gyro rather than SITL's (its default drift is a 0-0.25 deg/s triangle on every axis, ten
 #: minutes a cycle): residual biases after a boot calibration of 21 / -31 / 41 deg/h (x / y / z) and an in-run drift
@@ -72,8 +73,13 @@ COMPANION_PARAMS = {"GPS2_TYPE": 14, "GPS_AUTO_SWITCH": 4, "GPS_PRIMARY": 0, "SE
 #: a GPS loss before it uses a GPS again; the companion's fixes state hundreds of metres (checked against 5 m), a
 #: speed accuracy of 50 m/s (against 1 m/s) and the HDOP of those, so without these bits EKF3 never takes them and
 #: the boat's EKF failsafe holds it where it is. EK3_GPS_CHECK 17 keeps the default's satellite and yaw checks (31:
-#: bits 0-4) and drops its accuracy (POS_ERR, SPD_ERR) and HDOP ones.
-COMPANION_VEHICLE_PARAMS = {"plane": {}, "rover": {"EK3_GPS_CHECK": 17}}
+#: bits 0-4) and drops its accuracy (POS_ERR, SPD_ERR) and HDOP ones. EKF3 checks a GPS velocity against its
+#: EK3_VELNE_M_NSE (0.3 m/s), not against the reported speed accuracy (AP_NavEKF3_PosVelFusion: "we don't want the
+#: acceptance radius to increase with reported GPS accuracy"): where the gravity filter moves its position faster
+#: than its velocity says, EKF3's velocity (following the positions) leaves the stated one by metres per second, the
+#: velocity test fails and ArduRover's EKF failsafe holds the boat (flown: 22 min into the denial on both maps).
+#: EK3_VELNE_M_NSE 5 (its maximum) checks it against 5 m/s; GPS1's own velocity is then weighed at 5 m/s too.
+COMPANION_VEHICLE_PARAMS = {"plane": {}, "rover": {"EK3_GPS_CHECK": 17, "EK3_VELNE_M_NSE": 5.0}}
 #: the boat's water-speed log (companion.sim.speed_log through the gravimeter's link): its NAMED_VALUE_FLOAT name
 SPEED_LOG = "WSPD"
 #: the companion's settings: the recommended set-up (replay.live.sitl.COMPANION_SETS) in ``backup`` (in the outage a fix
