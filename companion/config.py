@@ -137,6 +137,10 @@ class GravityConfig:
     # .speed_log), not VFR_HUD's airspeed (on ArduRover the GPS's ground speed: the companion's own fixes in an
     # outage); the current takes the wind's place; "": the airspeed
     air_speed_log: str = ""
+    # the correction an outage state carries moves towards the filter's at most this fast (m/s) beyond the reckoning,
+    # the rest added to its stated covariance: an autopilot that fuses the states (ArduRover's EKF3) fails their
+    # velocity check when the position jumps; 0: no limit (docs/decisions/0020-gravity-aiding-on-a-boat.md)
+    air_correction_rate_mps: float = 0.0
     # the velocity its states carry is low-passed over this long (s; 0: raw): the air velocity's pitot noise and gusts
     # step it several m/s between states otherwise (docs/decisions/0016-air-data-velocity.md)
     air_output_tau_s: float = 1.0
@@ -240,7 +244,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "gravity.seq_wind_shift_mps": (0.0, 50.0), "gravity.seq_wind_shift_nis_ratio": (1.01, 1e6),
     "gravity.seq_jump_chi2": (0.0, 1e6),
     "gravity.air_gyro_window_s": (120.0, 7200.0), "gravity.air_gyro_bias_walk_degph_rth": (0.0, 1000.0),
-    "gravity.air_gyro_arw_deg_rth": (0.0, 100.0), "gravity.air_output_tau_s": (0.0, 60.0),
+    "gravity.air_gyro_arw_deg_rth": (0.0, 100.0), "gravity.air_output_tau_s": (0.0, 60.0), "gravity.air_correction_rate_mps": (0.0, 1e3),
     "gravity.reading_delay_s": (0.0, 600.0),
     "navigator.imu_index": (0, 3), "navigator.gnss_instance": (0, 1), "navigator.gnss_delay_s": (0.0, 1.0),
     "navigator.gnss_vel_delay_s": (0.0, 1.0),

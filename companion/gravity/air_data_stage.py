@@ -83,13 +83,17 @@ class AirDataGravityStage(Stage):
                  seed: int = 0, receiver_instance: int = 0, gnss_timeout_s: float = 0.6,
                  speed_sigma_floor_mps: float = 0.0, heading: str = "attitude",
                  gyro: GyroHeadingConfig | None = None, gyro_imu_index: int = 0,
-                 jump_chi2: float = CHI2_2_99, speed_log: bool = False) -> None:
+                 jump_chi2: float = CHI2_2_99, speed_log: bool = False, correction_rate_mps: float = 0.0) -> None:
         if heading not in HEADINGS:
             raise ValueError(f"heading must be one of {', '.join(HEADINGS)}, not {heading!r}")
         if (heading == "gyro") != cfg.ins.air_heading:
             raise ValueError("heading = \"gyro\" goes with SeqGravConfig.ins.air_heading = True (and only it)")
         self.heading = heading
         self.speed_log = bool(speed_log)  # the speed through the medium is a boat's log (WaterSpeed), not AirData
+        if not correction_rate_mps >= 0:
+            raise ValueError("correction_rate_mps must be >= 0 (0: no limit)")
+        self.correction_rate_mps = float(correction_rate_mps)
+        self._err_out: tuple[float, np.ndarray] | None = None  # (t, the correction the last state carried)
         self.gyro = GyroHeading(gyro) if heading == "gyro" else None
         self.gyro_imu_index = int(gyro_imu_index)
         self._gyro_at_loss = ""
@@ -198,6 +202,7 @@ class AirDataGravityStage(Stage):
                 self.filter.cfg = self.cfg
             self._outage_t = None
             self._est = None
+            self._err_out = None
             self.jumps.reset()
         else:
             self._bad_t = fix.t_s
@@ -284,6 +289,28 @@ class AirDataGravityStage(Stage):
                                  float(e.nis_mean), int(e.reinit_count), float(e.map_bias_mgal), False, math.nan,
                                  math.nan, float(e.cpu_s))]
 
+    def _limit_rate(self, t_s: float, err: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The correction a state carries moves towards the filter's at most ``correction_rate_mps`` beyond the
+        reckoning's own motion, and what it has not yet taken is added to the covariance it states (it is that far
+        from the filter's estimate). An autopilot that fuses the states checks their velocity against its own, which
+        follows their positions: a correction of hundreds of metres in seconds, which the stated velocity does not
+        show, fails that check (ArduRover's EKF failsafe then holds the boat: docs/decisions/0020). 0: no limit."""
+        if self.correction_rate_mps <= 0:
+            return err, cov
+        if self._err_out is None:
+            self._err_out = (t_s, err.copy())
+            return err, cov
+        t0, out = self._err_out
+        step = err - out
+        room = self.correction_rate_mps * max(t_s - t0, 0.0)
+        d = float(np.hypot(*step))
+        if d > room:
+            step = step * (room / d)
+        out = out + step
+        self._err_out = (t_s, out)
+        pending = err - out
+        return out, cov + np.outer(pending, pending)
+
     def _map_state(self, lat: float, lon: float, vn: float, ve: float) -> tuple[np.ndarray, np.ndarray]:
         """Map NE of a position and the map-frame velocity (1 s of motion on the map)."""
         from companion.gravity.air_data import radii_m
@@ -318,6 +345,7 @@ class AirDataGravityStage(Stage):
         err = e.err_ne_m + dv * dt
         cov = e.cov_ne_m2 + (e.vel_cov_ne_m2ps2 * dt * dt if e.vel_cov_ne_m2ps2 is not None else 0.0)
         cov = cov + self.jumps.cov_ne_m2 + np.eye(2) * (self.filter.cfg.pos_noise_m_rts**2 * dt if early else 0.0)
+        err, cov = self._limit_rate(s.t_s, err, cov)
         lon_o, lat_o = self.lmap.ne_to_xy((ne - err)[0], (ne - err)[1])
         v_n, v_e = vn - float(dv[0]), ve - float(dv[1])
         pv = np.diag(e.vel_cov_ne_m2ps2) if e.vel_cov_ne_m2ps2 is not None else np.full(2, 1e4)

@@ -370,7 +370,8 @@ def live_gravity_stage(config) -> Stage:
                                                           bias_walk_degph_rth=config.air_gyro_bias_walk_degph_rth,
                                                           arw_deg_rth=config.air_gyro_arw_deg_rth),
                                    gyro_imu_index=GYRO_SOURCES[config.air_gyro_source],
-                                   jump_chi2=config.seq_jump_chi2, speed_log=bool(config.air_speed_log))
+                                   jump_chi2=config.seq_jump_chi2, speed_log=bool(config.air_speed_log),
+                                   correction_rate_mps=config.air_correction_rate_mps)
     if config.matcher == "sequential":
         from companion.gravity.sequential_stage import SequentialGravityStage, seq_config_of
 

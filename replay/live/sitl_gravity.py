@@ -123,8 +123,10 @@ def arm_params(a, arm: str) -> dict[str, float]:
 
 
 #: ArduPlane's and ArduRover's 50 Hz main loops refuse a 50 Hz RAW_IMU stream ("Requested rate ... too fast"): ask
-#: for 25 Hz; the boat's reference speed is its log (on ArduRover VFR_HUD.airspeed is the GPS's ground speed)
-VEHICLE_SETS = {"plane": ["streams.RAW_IMU=25"], "rover": ["streams.RAW_IMU=25", f'gravity.air_speed_log="{SPEED_LOG}"']}
+#: for 25 Hz; the boat's reference speed is its log (on ArduRover VFR_HUD.airspeed is the GPS's ground speed), and
+#: its EKF3 fuses the states, so their correction moves at most 2 m/s beyond the reckoning (decision 0020)
+VEHICLE_SETS = {"plane": ["streams.RAW_IMU=25"],
+                "rover": ["streams.RAW_IMU=25", f'gravity.air_speed_log="{SPEED_LOG}"', "gravity.air_correction_rate_mps=2"]}
 
 
 def companion_sets(a) -> list[str]:

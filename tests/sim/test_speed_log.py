@@ -186,3 +186,25 @@ def test_a_boat_is_carried_by_its_log_from_the_loss_and_a_plane_waits_for_its_re
         assert err <= 2.0 * o.sigma_h_m + 1.0, (t, err, o.sigma_h_m)
     s = [o.sigma_h_m for _, _, o in early]
     assert s[0] < 5.0 and s[-1] > 3.0 * s[0]  # the reckoning's covariance grows from the loss (held-speed prior 1 m/s)
+
+
+def test_the_correction_a_state_carries_moves_at_most_its_rate_and_states_what_it_has_not_taken():
+    """A boat's EKF3 fuses the states and checks their velocity against its own, which follows their positions: a
+    correction taken at once fails it. Limited to 2 m/s, a 100 m correction is taken over 50 s, and the part not yet
+    taken is in the stated covariance; at rate 0 it is taken at once."""
+    stage, _ = _boat_stage(True)
+    stage.correction_rate_mps = 2.0
+    cov0 = np.eye(2) * 400.0
+    err, cov = stage._limit_rate(10.0, np.zeros(2), cov0)  # the first state carries the filter's correction
+    assert np.all(err == 0.0) and np.all(cov == cov0)
+    target = np.array([60.0, 80.0])  # 100 m
+    for k in range(1, 60):
+        err, cov = stage._limit_rate(10.0 + k, target, cov0)
+        taken = min(2.0 * k, 100.0)
+        assert err == pytest.approx(target * taken / 100.0)
+        pending = target - err
+        assert cov == pytest.approx(cov0 + np.outer(pending, pending))
+    assert err == pytest.approx(target) and cov == pytest.approx(cov0)
+    stage.correction_rate_mps = 0.0
+    err, cov = stage._limit_rate(100.0, -target, cov0)
+    assert np.all(err == -target) and np.all(cov == cov0)
