@@ -14,6 +14,15 @@ from companion.events import GravityReading
 DEFAULT_NAMED_VALUE = "GRAV"  # NAMED_VALUE_FLOAT.name is at most 10 characters
 
 
+def named_float(msg, name: str) -> float | None:
+    """The value of ``msg`` if it is a NAMED_VALUE_FLOAT called ``name`` (its NUL padding aside), else None. A
+    sensor's own plausibility test is the caller's."""
+    if msg is None or msg.get_type() != "NAMED_VALUE_FLOAT":
+        return None
+    got = msg.name.decode("ascii", "ignore") if isinstance(msg.name, bytes) else str(msg.name)
+    return float(msg.value) if got.rstrip("\x00").strip() == name else None
+
+
 class NamedValueGravityDecoder:
     """NAMED_VALUE_FLOAT(name == `name`) -> GravityReading; time from time_boot_ms (s), else the receive time."""
 
@@ -26,13 +35,8 @@ class NamedValueGravityDecoder:
 
     def value(self, msg) -> float | None:
         """The reading (mGal) if ``msg`` is a NAMED_VALUE_FLOAT of this name with a finite value, else None."""
-        if msg is None or msg.get_type() != "NAMED_VALUE_FLOAT":
-            return None
-        name = msg.name.decode("ascii", "ignore") if isinstance(msg.name, bytes) else str(msg.name)
-        if name.rstrip("\x00").strip() != self.name:
-            return None
-        v = float(msg.value)
-        return v if math.isfinite(v) else None
+        v = named_float(msg, self.name)
+        return v if v is not None and math.isfinite(v) else None
 
     def reading(self, t_s: float, value_mgal: float) -> GravityReading:
         return GravityReading(t_s=float(t_s), gravity_mgal=value_mgal, sigma_mgal=self.sigma_mgal,

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 
 from companion.events import WaterSpeed
+from companion.mavlink.gravimeter import named_float
 
 #: beyond this (m/s) a value is corrupt (the fastest craft a log is fitted to are below 60 m/s)
 MAX_SPEED_MPS = 100.0
@@ -28,12 +29,9 @@ class NamedValueSpeedLogDecoder:
 
     def value(self, msg) -> float | None:
         """The speed (m/s) if ``msg`` is a NAMED_VALUE_FLOAT of this name with a plausible value, else None."""
-        if msg is None or msg.get_type() != "NAMED_VALUE_FLOAT":
+        v = named_float(msg, self.name)
+        if v is None:
             return None
-        name = msg.name.decode("ascii", "ignore") if isinstance(msg.name, bytes) else str(msg.name)
-        if name.rstrip("\x00").strip() != self.name:
-            return None
-        v = float(msg.value)
         if not (math.isfinite(v) and 0.0 <= v <= MAX_SPEED_MPS):
             self.dropped += 1
             return None
