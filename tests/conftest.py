@@ -6,6 +6,7 @@ FAILS instead when the environment says the data must be there (``COMPANION_REQU
 
 from __future__ import annotations
 
+import os
 import socket
 from pathlib import Path
 
@@ -37,6 +38,17 @@ def require(path: Path) -> Path:
         if shared_required():
             pytest.fail(f"{why}; {REQUIRE_ENV_VAR} is set, so the shared data must be there", pytrace=False)
         pytest.skip(why)
+    return path
+
+
+def sitl_binary(env_var: str, program: str, waf_target: str) -> str:
+    """The ArduPilot SITL binary ``env_var`` names (built outside this repository), or skip with how to get one."""
+    path = os.environ.get(env_var)
+    if not path:
+        pytest.skip(f"{env_var} not set: point it at an {program} SITL binary (build/sitl/bin/{program.lower()} of an "
+                    f"ArduPilot checkout, built with `./waf configure --board sitl && ./waf {waf_target}`)")
+    if not (os.path.isfile(path) and os.access(path, os.X_OK)):
+        pytest.skip(f"{env_var}={path} is not an executable file")
     return path
 
 

@@ -360,7 +360,7 @@ def live_gravity_stage(config) -> Stage:
 
         # a log reads ~0 at rest where a pitot reads noise: a boat's reference moves from a walking pace
         air = AirDataConfig(wind_window_s=config.air_wind_window_s, output_tau_s=config.air_output_tau_s,
-                            **({"min_airspeed_mps": 0.3} if config.air_speed_log else {}))
+                            min_airspeed_mps=0.3 if config.air_speed_log else AirDataConfig.min_airspeed_mps)
         return AirDataGravityStage(lmap, seq_config_of(config), air,
                                    sigma_mgal=config.sigma_mgal, reading_delay_s=config.reading_delay_s,
                                    source=f"gravity:{config.named_value}:air_data",

@@ -6,26 +6,21 @@ of wall time (SITL at speedup 1)."""
 from __future__ import annotations
 
 import math
-import os
 
 import pytest
 
 from replay.live import sitl, sitl_core as core
+from tests.conftest import sitl_binary
 
 pytestmark = pytest.mark.slow
 
-BIN = os.environ.get("COMPANION_SITL_BIN")
 SCENARIO = "lap-deny-20-short"
 
 
 @pytest.fixture(scope="module")
 def flights(tmp_path_factory):
-    if not BIN:
-        pytest.skip("COMPANION_SITL_BIN not set: point it at an ArduCopter SITL binary (build/sitl/bin/arducopter "
-                    "of an ArduPilot checkout, built with `./waf configure --board sitl && ./waf copter`)")
-    if not (os.path.isfile(BIN) and os.access(BIN, os.X_OK)):
-        pytest.skip(f"COMPANION_SITL_BIN={BIN} is not an executable file")
-    a = sitl.parse_args(["--sitl-bin", BIN, "--scenarios", SCENARIO])
+    bin_ = sitl_binary("COMPANION_SITL_BIN", "ArduCopter", "copter")
+    a = sitl.parse_args(["--sitl-bin", bin_, "--scenarios", SCENARIO])
     work = tmp_path_factory.mktemp("sitl_ab")
     found = sitl.probe(a, work)
     sc = core.SCENARIOS[SCENARIO]

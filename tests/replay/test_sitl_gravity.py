@@ -9,7 +9,6 @@ outside this repository); skipped otherwise."""
 from __future__ import annotations
 
 import json
-import os
 import re
 
 import numpy as np
@@ -17,23 +16,18 @@ import pytest
 
 from replay.live import sitl_core as core
 from replay.live import sitl_gravity
-from tests.conftest import AK_MAP, require
+from tests.conftest import AK_MAP, require, sitl_binary
 
 pytestmark = pytest.mark.slow
 
-BIN = os.environ.get("COMPANION_SITL_PLANE_BIN")
 HEALTHY_MIN, DENIAL_MIN = 6.0, 6.0
 
 
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory):
-    if not BIN:
-        pytest.skip("COMPANION_SITL_PLANE_BIN not set: point it at an ArduPlane SITL binary (build/sitl/bin/arduplane "
-                    "of an ArduPilot checkout, built with `./waf configure --board sitl && ./waf plane`)")
-    if not (os.path.isfile(BIN) and os.access(BIN, os.X_OK)):
-        pytest.skip(f"COMPANION_SITL_PLANE_BIN={BIN} is not an executable file")
+    bin_ = sitl_binary("COMPANION_SITL_PLANE_BIN", "ArduPlane", "plane")
     out = tmp_path_factory.mktemp("sitl_gravity")
-    rc = sitl_gravity.main(["--sitl-bin", BIN, "--vehicle", "plane", "--map", str(require(AK_MAP)), "--arms",
+    rc = sitl_gravity.main(["--sitl-bin", bin_, "--vehicle", "plane", "--map", str(require(AK_MAP)), "--arms",
                             "companion", "--healthy-min", str(HEALTHY_MIN), "--denial-min", str(DENIAL_MIN),
                             "--back-min", "1", "--speedup", "4", "--outdir", str(out)])
     summary = json.loads((out / "summary.json").read_text())

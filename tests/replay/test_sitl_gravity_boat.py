@@ -9,7 +9,6 @@ this repository); skipped otherwise."""
 from __future__ import annotations
 
 import json
-import os
 import re
 
 import numpy as np
@@ -18,23 +17,18 @@ import pytest
 from companion.record.inspect import iter_payloads
 from replay.live import sitl_core as core
 from replay.live import sitl_gravity
-from tests.conftest import TASMAN_MAP, require
+from tests.conftest import TASMAN_MAP, require, sitl_binary
 
 pytestmark = pytest.mark.slow
 
-BIN = os.environ.get("COMPANION_SITL_ROVER_BIN")
 HEALTHY_MIN, DENIAL_MIN = 4.0, 5.0
 
 
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory):
-    if not BIN:
-        pytest.skip("COMPANION_SITL_ROVER_BIN not set: point it at an ArduRover SITL binary (build/sitl/bin/ardurover "
-                    "of an ArduPilot checkout, built with `./waf configure --board sitl && ./waf rover`)")
-    if not (os.path.isfile(BIN) and os.access(BIN, os.X_OK)):
-        pytest.skip(f"COMPANION_SITL_ROVER_BIN={BIN} is not an executable file")
+    bin_ = sitl_binary("COMPANION_SITL_ROVER_BIN", "ArduRover", "rover")
     out = tmp_path_factory.mktemp("sitl_gravity_boat")
-    rc = sitl_gravity.main(["--sitl-bin", BIN, "--vehicle", "rover", "--map", str(require(TASMAN_MAP)),
+    rc = sitl_gravity.main(["--sitl-bin", bin_, "--vehicle", "rover", "--map", str(require(TASMAN_MAP)),
                             "--origin=-31.0,156.0", "--arms", "companion", "--healthy-min", str(HEALTHY_MIN),
                             "--denial-min", str(DENIAL_MIN), "--back-min", "1", "--speedup", "4", "--outdir", str(out)])
     summary = json.loads((out / "summary.json").read_text())

@@ -182,7 +182,7 @@ def test_a_boat_is_carried_by_its_log_from_the_loss_and_a_plane_waits_for_its_re
     assert early and early[0][0] <= 301.0  # from the loss (0.6 s of GNSS timeout)
     assert all(o.measurement == SPEED_LOG_AID for _, _, o in early)
     for t, la, o in early + late:
-        err = math.hypot(math.radians(o.lat_deg - la) * rm, 0.0) + abs(o.lon_deg - LON0) * 1e5
+        err = abs(math.radians(o.lat_deg - la) * rm) + abs(o.lon_deg - LON0) * 1e5  # north, and a bound on east
         assert err <= 2.0 * o.sigma_h_m + 1.0, (t, err, o.sigma_h_m)
     s = [o.sigma_h_m for _, _, o in early]
     assert s[0] < 5.0 and s[-1] > 3.0 * s[0]  # the reckoning's covariance grows from the loss (held-speed prior 1 m/s)
@@ -208,3 +208,19 @@ def test_the_correction_a_state_carries_moves_at_most_its_rate_and_states_what_i
     stage.correction_rate_mps = 0.0
     err, cov = stage._limit_rate(100.0, -target, cov0)
     assert np.all(err == -target) and np.all(cov == cov0)
+
+
+def test_the_boat_settings_reach_the_live_stage():
+    """gravity.air_speed_log and air_correction_rate_mps from the configuration to the stage: the log in place of the
+    airspeed, a reckoning that moves from a walking pace (a log reads ~0 at rest), the rate limit."""
+    from companion.config import load_config, parse_override
+    from companion.gravity.stage import live_gravity_stage
+    from tests.conftest import AK_MAP, require
+
+    sets = ['link.connect="tcp:127.0.0.1:1"', f'gravity.map="{require(AK_MAP)}"', "gravity.matcher=sequential",
+            'gravity.reference="air_data"']
+    plane = live_gravity_stage(load_config(None, dict(parse_override(s) for s in sets)).gravity)
+    boat = live_gravity_stage(load_config(None, dict(parse_override(s) for s in sets + [
+        'gravity.air_speed_log="WSPD"', "gravity.air_correction_rate_mps=2"])).gravity)
+    assert (plane.speed_log, plane.correction_rate_mps, plane.dr.cfg.min_airspeed_mps) == (False, 0.0, 5.0)
+    assert (boat.speed_log, boat.correction_rate_mps, boat.dr.cfg.min_airspeed_mps) == (True, 2.0, 0.3)
