@@ -91,11 +91,25 @@ def test_arrival_tracker_dates_bytes_by_the_first_read_that_saw_them_queued():
     assert tr.observe(100, 0) == 0.0  # beyond: only this read saw them
 
 
+def _until_kernel_stamps(send, transport) -> None:
+    """Wait until the kernel stamps arrivals. Linux turns its receive stamps on with deferred work after the first
+    socket asks (net_enable_timestamp); until it has run, a read gets its own time as the stamp (age ~0). A probe
+    that waited 0.05 s in the queue and reads as that old shows the stamps are on (up to 60 s, for a loaded machine)."""
+    end = time.monotonic() + 60
+    while time.monotonic() < end:
+        send(b"p")
+        time.sleep(0.05)
+        if transport.recv(5.0) == b"p" and transport.last_age_s >= 0.04:
+            return
+    raise AssertionError("the kernel never stamped a received datagram or segment")
+
+
 def test_udp_read_takes_every_datagram_waiting_with_its_kernel_age():
     port = free_port()
     rx = UdpTransport("127.0.0.1", port, listen=True)
     tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
+        _until_kernel_stamps(lambda b: tx.sendto(b, ("127.0.0.1", port)), rx)
         t_first = time.monotonic()  # before the first datagram: an upper bound of their age whatever the load
         for k in range(5):
             tx.sendto(bytes([k]) * 100, ("127.0.0.1", port))
@@ -127,6 +141,7 @@ def _accepted_tcp_pair():
 def test_tcp_read_reports_the_kernel_age_of_its_bytes():
     srv, cli = _accepted_tcp_pair()
     try:
+        _until_kernel_stamps(cli.sendall, srv)
         t_first = time.monotonic()
         cli.sendall(b"x" * 1000)
         time.sleep(0.3)
