@@ -161,16 +161,39 @@ def ahrs_messages(log: core.FlightLog, deny_on: float) -> list[list]:
             if math.isfinite(t) and t > t0 and txt.lower().startswith("ahrs:")]
 
 
+def _settled(t: np.ndarray, err: np.ndarray, level_m: float, hold_s: float) -> np.ndarray:
+    """Per sample: it is within ``level_m``, and so is the median error of every ``hold_s`` window starting in the next
+    ``hold_s`` (each window covered by samples, not cut by the series' end)."""
+    end = np.searchsorted(t, t + hold_s, side="right")
+    whole = t[end - 1] >= t + hold_s - 1.0
+    med_ok = np.array([bool(whole[k]) and float(np.median(err[k:end[k]])) <= level_m for k in range(len(t))], bool)
+    bad = np.concatenate([[0], np.cumsum(~med_ok)])
+    return (err <= level_m) & whole & (bad[end] == bad[np.arange(len(t))])
+
+
 def reconverge_s(t: np.ndarray, err: np.ndarray, t_back: float, level_m: float, hold_s: float = 10.0) -> float:
-    """Seconds after ``t_back`` until the error is within ``level_m`` and stays there for ``hold_s``; NaN never."""
+    """Seconds after ``t_back`` until the error is back within ``level_m``: the first sample within it from which the
+    median error of every ``hold_s`` window starting in the next ``hold_s`` is within it too; NaN never. A median, not
+    every sample: a healthy error is above its own 95th percentile 5 % of the time, so asking every sample of 10 s
+    to stay under it read healthy flight as not converged for minutes (docs/decisions/0021)."""
     sel = t >= t_back
-    tt, ee = t[sel], err[sel]
-    for i in range(len(tt)):
-        if ee[i] <= level_m:
-            w = (tt >= tt[i]) & (tt <= tt[i] + hold_s)
-            if np.all(ee[w] <= level_m) and tt[w][-1] >= tt[i] + hold_s - 1.0:
-                return float(tt[i] - t_back)
-    return math.nan
+    idx = np.nonzero(_settled(t[sel], err[sel], level_m, hold_s))[0]
+    return float(t[sel][idx[0]] - t_back) if len(idx) else math.nan
+
+
+def healthy_wait_max_s(t: np.ndarray, err: np.ndarray, t0: float, t1: float, level_m: float,
+                       step_s: float = 20.0, hold_s: float = 10.0) -> float:
+    """The measure's own check: :func:`reconverge_s` started every ``step_s`` within [t0, t1 - 60 s) of a phase with
+    GNSS, the longest it waits (NaN when it never settles from some start). Near 0 when the measure reads healthy
+    flight as converged."""
+    sel = (t >= t0) & (t < t1)
+    tt = t[sel]
+    ok = _settled(tt, err[sel], level_m, hold_s)
+    waits = []
+    for start in np.arange(t0, t1 - 60.0, step_s):
+        idx = np.nonzero(ok & (tt >= start))[0]
+        waits.append(float(tt[idx[0]] - start) if len(idx) else math.nan)
+    return float(max(waits)) if waits and not any(math.isnan(w) for w in waits) else math.nan
 
 
 def _nearest(t, v, at, tol):
@@ -216,6 +239,7 @@ def arm_summary(log: core.FlightLog, survey: Survey, modes: dict[int, str], kept
     out["yaw_err_deg"] = yaw_error_deg(log, on, off)
     level = healthy_level_m if healthy_level_m is not None else out["healthy_p95_m"]
     out["reconverge_s"] = _f(reconverge_s(t, err, off, level)) if level is not None and math.isfinite(off) else None
+    out["healthy_wait_max_s"] = _f(healthy_wait_max_s(t, err, route + 120.0, on, level)) if level is not None else None
     if records is not None:
         own_t, own_err, own_fx, own_hacc = core.companion_error(records, log.truth)
         sel = (own_t >= on) & (own_t < off) & (own_fx >= 3) & np.isfinite(own_hacc) & (own_hacc > 0)
@@ -224,8 +248,22 @@ def arm_summary(log: core.FlightLog, survey: Survey, modes: dict[int, str], kept
         # the claim standing when GNSS came back: the companion's last fix in the denial, if it was 3D
         last = np.nonzero((own_t >= on) & (own_t < off))[0]
         out["last_hacc_m"] = _f(float(own_hacc[last[-1]])) if last.size and own_fx[last[-1]] >= 3 else None
+        # ... and its velocity, which EKF3 carries past the position reset at the return (docs/decisions/0021)
+        out["last_vel_err_mps"], out["last_speed_acc_mps"] = _last_velocity(records, log.truth, on, off)
         out["own_mean_m"] = _f(float(own_err[sel].mean())) if sel.any() else None
     return out
+
+
+def _last_velocity(records: list[dict], truth, on: float, off: float) -> tuple[float | None, float | None]:
+    """The error of the velocity in the companion's last 3D fix of the denial against SITL's, and its stated speed
+    accuracy (m/s); None without one."""
+    rs = [r for r in records if r.get("sent") and r.get("fix_type", 0) >= 3 and on <= r["time_boot_us"] / 1e6 < off]
+    if not rs or rs[-1].get("vel_n_mps") is None:
+        return None, None
+    r = rs[-1]
+    vt = core.truth_velocity_ne(truth, np.array([r["time_boot_us"] / 1e6]))[0]
+    err = math.hypot(r["vel_n_mps"] - vt[0], r["vel_e_mps"] - vt[1])
+    return _f(err), _f(r.get("speed_acc_mps", math.nan))
 
 
 def yaw_error_deg(log: core.FlightLog, on: float, off: float) -> dict | None:

@@ -77,11 +77,16 @@ def verdicts(summary: dict, vehicle: str) -> list[str]:
         out.append(f"- GNSS return: jump {j:.0f} m with no companion fix standing (EKF3's own dead-reckoning error; "
                    f"alone: {_m(A.get('return_jump_m'), ' m')}): MISSED by {j:.0f} m")
     elif j is not None:
+        ve, sa = B.get("last_vel_err_mps"), B.get("last_speed_acc_mps")
         out.append(f"- GNSS return: jump {j:.0f} m vs last stated h_acc {h:.0f} m: "
-                   + ("met" if j <= h else f"MISSED by {j - h:.0f} m"))
-    rc = B.get("reconverge_s")
+                   + ("met" if j <= h else f"MISSED by {j - h:.0f} m")
+                   + (f" (the last fix's velocity, which EKF3 carries past the reset: {ve:.1f} m/s off, stated "
+                      f"{_m(sa, ' m/s')})" if ve is not None else ""))
+    rc, hw = B.get("reconverge_s"), B.get("healthy_wait_max_s")
     out.append(f"- back to alone's healthy error: {_m(rc, ' s')}; target <= 30 s: "
-               + ("met" if rc is not None and rc <= 30 else "MISSED" + (f" by {rc - 30:.0f} s" if rc is not None else " (never)")))
+               + ("met" if rc is not None and rc <= 30 else "MISSED" + (f" by {rc - 30:.0f} s" if rc is not None else " (never)"))
+               + (f" (the same measure started anywhere in the companion's healthy phase waits at most {_m(hw, ' s')})"
+                  if "healthy_wait_max_s" in B else ""))
     return out
 
 

@@ -102,8 +102,10 @@ def test_arm_summary_measures_the_scripted_errors_in_the_schema():
         tl, tn = core.truth_at(log.truth, [t])
         n, ee, _ = fr.to_ned_m(tl[0], tn[0], 0.0)
         lat, lon, _ = fr.to_geodetic(np.array([n + e, ee, 0.0]))
+        vn, ve = core.truth_velocity_ne(log.truth, [t])[0]
         recs.append({"sent": True, "lat_deg": float(lat), "lon_deg": float(lon), "time_boot_us": int(t * 1e6),
-                     "fix_type": 3, "h_acc_m": 100.0})
+                     "fix_type": 3, "h_acc_m": 100.0, "vel_n_mps": vn + 3.0, "vel_e_mps": ve - 4.0,
+                     "speed_acc_mps": 50.0})
     out = gc.arm_summary(log, s, gc.PLANE_MODES, True, recs, healthy_level_m=2.0)
     assert list(out["error_m_at_min"]) == [str(m) for m in range(5, 61, 5)]
     for m in range(5, 60, 5):
@@ -117,9 +119,11 @@ def test_arm_summary_measures_the_scripted_errors_in_the_schema():
     assert out["last_hacc_m"] == 100.0 and out["own_mean_m"] == pytest.approx(175.0, rel=0.015)
     assert out["return_jump_m"] == pytest.approx(1799.5 - 5.0, rel=0.015)  # the step when GNSS came back
     assert out["reconverge_s"] == pytest.approx(20.0, abs=1.0)
+    assert out["last_vel_err_mps"] == pytest.approx(5.0, abs=0.01) and out["last_speed_acc_mps"] == 50.0
     summary = {"arms": {"alone": gc.arm_summary(log, s, gc.PLANE_MODES, True), "companion": out}}
     assert gc.validate_summary(json.loads(json.dumps(summary))) == []
     text = table(summary, "plane")
+    assert "5.0 m/s off, stated 50.0 m/s" in text
     assert "MISSED" in text and "0.5 min Failsafe. Long event on" in text and "+0.2 min AHRS: DCM active" in text
 
 
@@ -138,3 +142,18 @@ def test_reconverge_never_is_nan():
     t = np.arange(0.0, 100.0)
     assert math.isnan(gc.reconverge_s(t, np.full(100, 50.0), 10.0, 5.0))
     assert gc.reconverge_s(t, np.where(t < 40, 50.0, 1.0), 10.0, 5.0) == 30.0
+
+
+def test_reconverge_reads_a_healthy_error_as_converged_at_once_and_times_a_decay():
+    """Healthy noise at 5 Hz is back within its own 95th percentile at once (asking every sample of 10 s to stay under
+    it waited minutes); a decaying error with that noise on top is back when the decay has died out."""
+    rng = np.random.default_rng(7)
+    t = np.arange(0.0, 600.0, 0.2)
+    healthy = 0.27 + 0.02 * rng.standard_normal(len(t))
+    level = float(np.percentile(healthy, 95))
+    assert gc.reconverge_s(t, healthy, 0.0, level) <= 1.0
+    assert gc.healthy_wait_max_s(t, healthy, 0.0, 600.0, level) <= 2.0  # started anywhere, it settles at once
+    excursion = np.where((t >= 300.0) & (t < 340.0), 1.0, healthy)  # 40 s at 1 m: started at 300 s, waits to 340 s
+    assert gc.healthy_wait_max_s(t, excursion, 0.0, 600.0, level) == pytest.approx(40.0, abs=0.5)
+    decay = healthy + 2400.0 * np.exp(-t / 1.5)  # 2.4 km: 0.1 m (5 sigma) at 15.1 s, 0.01 m at 18.6 s
+    assert 15.0 <= gc.reconverge_s(t, decay, 0.0, level) <= 18.7
