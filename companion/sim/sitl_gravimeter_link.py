@@ -2,7 +2,7 @@
 (SIMSTATE) from a spare SITL MAVLink port and sends its readings as NAMED_VALUE_FLOAT ``GRAV`` (mGal) with the
 autopilot's system id, which ArduPilot routes to its other links -- where the companion takes them like any
 gravimeter's (companion.mavlink.gravimeter). On a boat, ``--speed-log NAME`` adds a water-speed log
-(companion.sim.speed_log) the same way (companion.mavlink.speed_log).
+(companion.sim.speed_log) the same way (companion.mavlink.speed_log), through the water of SITL's tide.
 
     python -m companion.sim.sitl_gravimeter_link --connect tcp:127.0.0.1:5763 --map GRID.nc --seed 1 --record g.jsonl
 
@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from companion.gravity.maps import LocalGravityMap, load_grid
+from companion.mavlink.decode import MAV_MODE_FLAG_SAFETY_ARMED
 from companion.mavlink.gravimeter import DEFAULT_NAMED_VALUE
 from companion.sim.gravity_residuals import ship_minus_satellite_mgal
 from companion.sim.speed_log import SpeedLog, SpeedLogSpec
@@ -71,12 +72,46 @@ class GravimeterOnLink:
         return [(int(round(t * 1000.0)), v)]
 
 
-def speed_log_values(log: SpeedLog, gl: GravimeterOnLink, m) -> list[tuple[int, float]]:
+#: SITL's tide (SIM_Sailboat): its speed and the direction it comes from, as parameters
+TIDE_PARAMS = ("SIM_TIDE_SPEED", "SIM_TIDE_DIR")
+
+
+class SitlTide:
+    """The water's current SITL moves its boat by, from what the autopilot says: PARAM_VALUE of SIM_TIDE_SPEED and
+    SIM_TIDE_DIR (sent to every link when set, and on request), applied only while the vehicle is armed
+    (SIM_Sailboat: ``tide_velocity_ef = -(cos dir, sin dir) * speed`` when soft-armed)."""
+
+    def __init__(self, system_id: int = 1) -> None:
+        self.system_id = system_id
+        self.speed_mps = 0.0
+        self.dir_deg = 0.0
+        self.armed = False
+
+    def on_message(self, m) -> None:
+        kind = m.get_type()
+        if kind == "PARAM_VALUE":
+            name = str(m.param_id).rstrip("\x00")
+            if name == TIDE_PARAMS[0] and math.isfinite(m.param_value):
+                self.speed_mps = float(m.param_value)
+            elif name == TIDE_PARAMS[1] and math.isfinite(m.param_value):
+                self.dir_deg = float(m.param_value)
+        elif kind == "HEARTBEAT" and m.get_srcSystem() == self.system_id and m.get_srcComponent() == 1:
+            self.armed = bool(m.base_mode & MAV_MODE_FLAG_SAFETY_ARMED)
+
+    def current_ne_mps(self) -> tuple[float, float]:
+        if not self.armed or self.speed_mps == 0.0:
+            return 0.0, 0.0
+        d = math.radians(self.dir_deg)
+        return -math.cos(d) * self.speed_mps, -math.sin(d) * self.speed_mps
+
+
+def speed_log_values(log: SpeedLog, gl: GravimeterOnLink, m, tide: SitlTide | None = None) -> list[tuple[int, float]]:
     """The speed log's (time_boot_ms, m/s) values due after ``gl`` took ``m``: a SIMSTATE with a position, stamped
-    as the gravimeter stamps it (the newest time_boot_ms seen before it)."""
+    as the gravimeter stamps it (the newest time_boot_ms seen before it), through the water of ``tide``."""
     if m.get_type() != "SIMSTATE" or gl.t_boot_s is None or (m.lat == 0 and m.lng == 0):
         return []
-    return [(int(round(t * 1000.0)), v) for t, v in log.truth(gl.t_boot_s, m.lat * 1e-7, m.lng * 1e-7)]
+    cur = tide.current_ne_mps() if tide is not None else (0.0, 0.0)
+    return [(int(round(t * 1000.0)), v) for t, v in log.truth(gl.t_boot_s, m.lat * 1e-7, m.lng * 1e-7, cur)]
 
 
 def build_meter(map_path: str, seed: int, spec: GravimeterSpec, origin: tuple[float, float] | None = None) -> TruthGravimeter:
@@ -152,6 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"gravimeter: {a.connect} bias {meter.bias_mgal:+.2f} mGal drift {meter.drift_mgal_per_s * 3600:+.2f} mGal/h "
           f"window {spec.window_s:g} s" + (f"; speed log {a.speed_log}: scale {slog.scale:.4f}, bias "
                                            f"{slog.bias_mps:+.3f} m/s" if slog is not None else ""), flush=True)
+    tide = SitlTide(a.system_id)
     asked = 0.0
     try:
         while not stop["v"]:
@@ -162,6 +198,9 @@ def main(argv: list[str] | None = None) -> int:
                     mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, mid,
                                           1e6 / a.rate_hz, 0, 0, 0, 0, 0)
                 mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GENERIC, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+                if slog is not None:  # the tide's parameters (sent to every link when they change, too)
+                    for name in TIDE_PARAMS:
+                        mav.param_request_read_send(a.system_id, 1, name.encode(), -1)
             m = link.recv_match(blocking=True, timeout=0.2)
             if m is None:
                 continue
@@ -172,7 +211,8 @@ def main(argv: list[str] | None = None) -> int:
                     rec.write(json.dumps({"t_s": tb_ms / 1000.0, "mgal": v, "lat": lat, "lon": lon,
                                           "map_mgal": meter.truth_value_mgal(lat, lon)}) + "\n")
             if slog is not None:
-                for tb_ms, v in speed_log_values(slog, gl, m):
+                tide.on_message(m)
+                for tb_ms, v in speed_log_values(slog, gl, m, tide):
                     mav.named_value_float_send(tb_ms, a.speed_log.encode(), float(v))
     except (ConnectionError, OSError) as e:
         print(f"gravimeter: link closed: {e}", flush=True)

@@ -1,10 +1,11 @@
 """A simulated water-speed log on an ArduPilot SITL boat: SITL's truth in, the log's speed through the water out.
 
-The speed is the truth's horizontal speed over the last ``window_s`` (SIMSTATE positions differenced: SIMSTATE has no
-velocity), as a calibrated log gives it: a scale error (a log's calibration leaves a percent or two), a bias and white
-noise, drawn once / per value from a seeded generator. SITL's boat is not set by a current (SIM_Rover has none), so
-through the water is over the ground here; a current would enter a real log's reading and the reference's learnt
-current alike. Pure: vehicle time only; memory bounded by the window.
+The speed is the truth's horizontal velocity over the last ``window_s`` (SIMSTATE positions differenced: SIMSTATE has
+no velocity) less the water's current, as a calibrated log gives it: a scale error (a log's calibration leaves a
+percent or two), a bias and white noise, drawn once / per value from a seeded generator. SITL's motorboat is a
+SIM_Sailboat whose hull the tide (SIM_TIDE_SPEED / SIM_TIDE_DIR) carries over the ground while it steers through the
+water, so the speed through the water is the velocity over the ground minus the tide's. Pure: vehicle time only;
+memory bounded by the window.
 """
 
 from __future__ import annotations
@@ -33,7 +34,8 @@ class SpeedLogSpec:
 
 
 class SpeedLog:
-    """``truth(t_s, lat_deg, lon_deg)`` in time order; each returns the (t_s, speed_mps) values due (none or one)."""
+    """``truth(t_s, lat_deg, lon_deg, current_ne_mps)`` in time order; each returns the (t_s, speed_mps) values due
+    (none or one)."""
 
     def __init__(self, spec: SpeedLogSpec, rng: np.random.Generator) -> None:
         self.spec = spec
@@ -43,7 +45,8 @@ class SpeedLog:
         self._pts: deque[tuple[float, float, float]] = deque()  # (t, lat, lon) over the window
         self._next_s: float | None = None
 
-    def truth(self, t_s: float, lat_deg: float, lon_deg: float) -> list[tuple[float, float]]:
+    def truth(self, t_s: float, lat_deg: float, lon_deg: float,
+              current_ne_mps: tuple[float, float] = (0.0, 0.0)) -> list[tuple[float, float]]:
         if not (math.isfinite(t_s) and math.isfinite(lat_deg) and math.isfinite(lon_deg)):
             return []
         if self._pts and t_s <= self._pts[-1][0]:
@@ -62,6 +65,6 @@ class SpeedLog:
         rm, rn = radii_m(0.5 * (lat0 + lat_deg))
         dn = math.radians(lat_deg - lat0) * rm
         de = math.radians(lon_deg - lon0) * rn * math.cos(math.radians(0.5 * (lat0 + lat_deg)))
-        v = math.hypot(dn, de) / (t_s - t0)
+        v = math.hypot(dn / (t_s - t0) - current_ne_mps[0], de / (t_s - t0) - current_ne_mps[1])
         s = v * self.scale + self.bias_mps + float(self.rng.normal(0.0, self.spec.white_sigma_mps))
         return [(float(t_s), max(0.0, s))]

@@ -1,5 +1,6 @@
 """Gravity aiding on a real ArduPilot vehicle, A/B in SITL: a survey over a gravity grid with GNSS for
-``--healthy-min``, denied (SIM_GPS1_ENABLE 0) for ``--denial-min`` in a wind that turns, then back for ``--back-min``.
+``--healthy-min``, denied (SIM_GPS1_ENABLE 0) for ``--denial-min`` in a wind (a boat: a current) that turns, then back
+for ``--back-min``.
 
 * alone: ArduPilot at its documented best for a GNSS loss (Plane: airspeed sensor fused, EKF3 wind estimation and
   dead reckoning on air data; Rover: its defaults, whose EKF failsafe holds the boat), the same mission and weather;
@@ -335,6 +336,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--heading-deg", type=float, default=0.0)
     p.add_argument("--wind-mps", type=float, default=7.0)
     p.add_argument("--turb-mps", type=float, default=2.0)
+    p.add_argument("--current-mps", type=float, default=None,
+                   help="boat: the water's current (SITL's SIM_TIDE_SPEED; default 0.5, 0: still water)")
+    p.add_argument("--current-dir-deg", type=float, default=200.0, help="boat: where the current comes from")
+    p.add_argument("--current-turn-deg", type=float, default=7.5,
+                   help="boat: the current turns by this every 15 min of the denial (7.5: a rotary tide's 30 deg/h)")
     p.add_argument("--seed", type=int, default=1, help="the gravimeter's draws (bias, drift, noise, misfit start)")
     p.add_argument("--speedup", type=float, default=4.0)
     p.add_argument("--arms", nargs="+", choices=("alone", "companion"), default=["alone", "companion"])
@@ -368,7 +374,11 @@ def main(argv: list[str] | None = None) -> int:
     boat = a.vehicle == "rover"
     a.survey = gc.Survey((lat0, lon0), a.line_km or (8.0 if boat else 30.0), a.spacing_km or (1.5 if boat else 4.0),
                          a.lines, a.heading_deg, 0.0 if boat else 150.0)
-    a.schedule = gc.Schedule(a.healthy_min, a.denial_min, a.back_min, a.wind_mps, turb_mps=a.turb_mps)
+    if a.current_mps is None:  # a run kept from before the current was simulated flew in still water
+        a.current_mps = 0.5 if boat and (prior is None or "current_mps" in prior["run"]["schedule"]) else 0.0
+    a.schedule = gc.Schedule(a.healthy_min, a.denial_min, a.back_min, a.wind_mps, turb_mps=a.turb_mps,
+                             current_mps=a.current_mps if boat else 0.0, current_dir_deg=a.current_dir_deg,
+                             current_turn_deg=a.current_turn_deg)
     a.defaults = defaults_for(a.vehicle, a.sitl_bin_path)
     a.outdir = Path(a.outdir).resolve()
     a.outdir.mkdir(parents=True, exist_ok=True)

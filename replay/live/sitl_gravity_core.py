@@ -106,7 +106,8 @@ def cross_track_m(lat, lon, survey: Survey) -> np.ndarray:
 class Schedule:
     """Minutes after the survey start: GNSS for ``healthy_min``, denied for ``denial_min``, back for ``back_min``.
     The wind (``wind_mps`` from ``wind_dir_deg``, turbulence ``turb_mps``) turns by ``wind_turn_deg`` every
-    ``wind_turn_min`` of the denial."""
+    ``wind_turn_min`` of the denial; on a boat the water's current (SITL's tide, ``current_mps`` from
+    ``current_dir_deg``; 0: still) turns by ``current_turn_deg`` every ``wind_turn_min`` too."""
 
     healthy_min: float = 20.0
     denial_min: float = 60.0
@@ -116,6 +117,9 @@ class Schedule:
     turb_mps: float = 2.0
     wind_turn_deg: float = 40.0
     wind_turn_min: float = 15.0
+    current_mps: float = 0.0
+    current_dir_deg: float = 200.0
+    current_turn_deg: float = 7.5
 
     def events(self, t0_s: float) -> list[tuple[float, str, dict[str, float]]]:
         """(vehicle time, label, parameters to set) in time order, from survey start ``t0_s``."""
@@ -126,13 +130,19 @@ class Schedule:
         while self.wind_turn_min > 0 and k * self.wind_turn_min < self.denial_min:
             d = (self.wind_dir_deg + k * self.wind_turn_deg) % 360.0
             ev.append((on + 60.0 * k * self.wind_turn_min, f"wind {d:.0f} deg", {"SIM_WIND_DIR": d}))
+            if self.current_mps > 0:
+                c = (self.current_dir_deg + k * self.current_turn_deg) % 360.0
+                ev.append((on + 60.0 * k * self.wind_turn_min, f"current {c:.1f} deg", {"SIM_TIDE_DIR": c}))
             k += 1
         ev.append((off, "deny_off", {"SIM_GPS1_ENABLE": 1.0}))
         ev.append((off + 60.0 * self.back_min, "end", {}))
         return sorted(ev, key=lambda x: x[0])
 
     def sim_params(self) -> dict[str, float]:
-        return {"SIM_WIND_SPD": self.wind_mps, "SIM_WIND_DIR": self.wind_dir_deg, "SIM_WIND_TURB": self.turb_mps}
+        p = {"SIM_WIND_SPD": self.wind_mps, "SIM_WIND_DIR": self.wind_dir_deg, "SIM_WIND_TURB": self.turb_mps}
+        if self.current_mps > 0:  # SITL's boats only (SIM_Sailboat, which the motorboat is): a tide moving the hull
+            p.update(SIM_TIDE_SPEED=self.current_mps, SIM_TIDE_DIR=self.current_dir_deg)
+        return p
 
 
 # -- one arm's figures ---------------------------------------------------------------------------------------------

@@ -164,9 +164,14 @@ def write_results(a, summary: dict, table_text: str, png, results_dir) -> None:
         + (f"min. Weather: SIM_WIND_SPD {sc['wind_mps']:g} m/s from {sc['wind_dir_deg']:g} deg, SIM_WIND_TURB "
            f"{sc['turb_mps']:g} m/s, the wind turning by {sc['wind_turn_deg']:g} deg every {sc['wind_turn_min']:g} "
            "min of the denial; SITL's airspeed sensor with its default noise." if a.vehicle != "rover" else
-           "min. Water: SITL's boat is moved by neither wind nor current (SIM_Rover has none), so the water is "
-           "still; its speed log (companion.sim.speed_log, NAMED_VALUE_FLOAT WSPD on the gravimeter's link) reads "
-           "the true speed with a seeded 1 % scale error, a 0.02 m/s bias and 0.05 m/s noise, 2 Hz.")
+           "min. Water: " + (f"SITL's tide carries the boat (SIM_TIDE_SPEED {sc['current_mps']:g} m/s from "
+                             f"{sc['current_dir_deg']:g} deg), turning by {sc['current_turn_deg']:g} deg every "
+                             f"{sc['wind_turn_min']:g} min of the denial; the wind does not move a motorboat "
+                             "(SIM_Sailboat without sail)" if sc.get("current_mps", 0.0) > 0 else
+                             "still: SITL's motorboat is moved by neither wind (no sail) nor current (SIM_TIDE_SPEED "
+                             "0)")
+           + "; its speed log (companion.sim.speed_log, NAMED_VALUE_FLOAT WSPD on the gravimeter's link) reads the "
+           "speed through the water with a seeded 1 % scale error, a 0.02 m/s bias and 0.05 m/s noise, 2 Hz.")
         + " Gravimeter (companion.sim.sitl_gravimeter_link, "
         "on SERIAL2, its NAMED_VALUE_FLOAT routed by the autopilot): the map at SITL's true position + the real "
         "ship-minus-satellite misfit + 1 mGal white noise + the Eotvos term at the true velocity + a seeded bias "

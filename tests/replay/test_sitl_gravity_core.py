@@ -64,6 +64,16 @@ def test_schedule_denies_turns_the_wind_and_gives_gnss_back():
     assert (ev[-2][0], ev[-2][1]) == (1300.0 + 3600.0, "deny_off") and ev[-1][:2] == (1300.0 + 3600.0 + 300.0, "end")
 
 
+def test_schedule_turns_a_boats_current_with_the_wind_and_sets_it_only_when_there_is_one():
+    sc = gc.Schedule(healthy_min=20, denial_min=60, back_min=5, current_mps=0.5, current_dir_deg=350.0,
+                     current_turn_deg=7.5)
+    tides = [(x[0] - 1300.0, x[2]["SIM_TIDE_DIR"]) for x in sc.events(100.0) if "SIM_TIDE_DIR" in x[2]]
+    assert tides == [(900.0, 357.5), (1800.0, 5.0), (2700.0, 12.5)]
+    assert sc.sim_params()["SIM_TIDE_SPEED"] == 0.5 and sc.sim_params()["SIM_TIDE_DIR"] == 350.0
+    still = gc.Schedule()
+    assert "SIM_TIDE_SPEED" not in still.sim_params() and not any("SIM_TIDE_DIR" in x[2] for x in still.events(0.0))
+
+
 def _flight(err_fn, deny_on=1300.0, deny_off=4900.0, end=5200.0, route=100.0, dt=0.5):
     """A scripted flight along the survey's first line at 25 m/s, the EKF off to the east of the truth by
     err_fn(t) metres."""

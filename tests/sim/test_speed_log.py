@@ -15,7 +15,7 @@ from companion.gravity.air_data import radii_m
 from companion.mavlink.decode import MavlinkDecoder
 from companion.mavlink.gravimeter import NamedValueGravityDecoder
 from companion.mavlink.speed_log import NamedValueSpeedLogDecoder
-from companion.sim.sitl_gravimeter_link import GravimeterOnLink, speed_log_values
+from companion.sim.sitl_gravimeter_link import GravimeterOnLink, SitlTide, speed_log_values
 from companion.sim.speed_log import SpeedLog, SpeedLogSpec
 
 LAT0, LON0 = -31.0, 156.0
@@ -95,6 +95,46 @@ def test_link_stamps_the_log_as_the_gravimeter_and_the_decoder_puts_it_on_the_ve
     plain = MavlinkDecoder(gravity=NamedValueGravityDecoder("GRAV"))
     plain.decode(_msgs(mav.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3))[0], 0.0)
     assert plain.decode(_msgs(mav.MAVLink_named_value_float_message(1000, b"WSPD", 5.0))[0], 0.1) == []
+
+
+def test_log_reads_through_the_water_of_sitls_tide_once_armed():
+    """SITL's tide (SIM_TIDE_SPEED 0.5 m/s coming from SIM_TIDE_DIR 180 deg: flowing north) carries a boat going
+    north at 8 m/s over the ground: through the water it makes 7.5 m/s; going south, 8.5 m/s. Before the autopilot arms SITL applies no tide, and neither does the log; the parameters come as the
+    autopilot's PARAM_VALUE, the armed state from its own HEARTBEAT (not another component's)."""
+    tide = SitlTide(1)
+    for m in _msgs(mav.MAVLink_param_value_message(b"SIM_TIDE_SPEED", 0.5, 9, 1000, -1),
+                   mav.MAVLink_param_value_message(b"SIM_TIDE_DIR", 180.0, 9, 1000, -1)):
+        tide.on_message(m)
+    armed = mav.MAV_MODE_FLAG_SAFETY_ARMED | mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+    tide.on_message(_msgs(mav.MAVLink_heartbeat_message(6, 3, armed, 0, 4, 3), src=(1, 191))[0])
+    assert tide.current_ne_mps() == (0.0, 0.0)  # another component's heartbeat: not the autopilot arming
+    expect = {}
+    for heading, want in ((0.0, 8.0), (180.0, 8.5)):
+        gl = GravimeterOnLink(type("M", (), {"sample": lambda *a: None, "read": lambda *a: None})(), 1.0)
+        log = SpeedLog(SpeedLogSpec(period_s=0.5, scale_sigma=0.0, bias_sigma_mps=0.0, white_sigma_mps=0.0),
+                       np.random.default_rng(0))
+        t = np.arange(0.0, 3.0, 0.1)
+        lat, lon = _track(8.0, heading, t)
+        tide.on_message(_msgs(mav.MAVLink_heartbeat_message(10, 3, armed if heading else 0, 0, 4, 3))[0])
+        sent = []
+        for ti, la, lo in zip(t, lat, lon):
+            tb = int(round((100.0 + ti) * 1000))
+            for m in (mav.MAVLink_attitude_message(tb, 0, 0, 0, 0, 0, 0),
+                      mav.MAVLink_simstate_message(0, 0, 0, 0, 0, 0, 0, 0, 0, int(round(la * 1e7)),
+                                                   int(round(lo * 1e7)))):
+                gl.on_message(m)
+                sent += speed_log_values(log, gl, m, tide)
+        expect[heading] = (sent, want)
+    assert all(v == pytest.approx(8.0, abs=0.02) for _, v in expect[0.0][0])  # disarmed: no tide
+    assert len(expect[180.0][0]) >= 4 and all(v == pytest.approx(8.5, abs=0.02) for _, v in expect[180.0][0])
+    tide.on_message(_msgs(mav.MAVLink_heartbeat_message(10, 3, armed, 0, 4, 3))[0])
+    assert tide.current_ne_mps() == pytest.approx((0.5, 0.0), abs=1e-9)  # flowing north
+    log = SpeedLog(SpeedLogSpec(scale_sigma=0.0, bias_sigma_mps=0.0, white_sigma_mps=0.0), np.random.default_rng(0))
+    t = np.arange(0.0, 3.0, 0.1)
+    lat, lon = _track(8.0, 0.0, t)
+    vals = [v for ti, la, lo in zip(t, lat, lon) for _, v in log.truth(float(ti), float(la), float(lo),
+                                                                         tide.current_ne_mps())]
+    assert vals and all(v == pytest.approx(7.5, abs=0.02) for v in vals)
 
 
 @pytest.mark.parametrize("speed_log", [False, True])
