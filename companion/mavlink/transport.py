@@ -8,9 +8,9 @@ How far behind the reader is, after each ``recv``: ``last_pending`` (bytes the k
 ``last_age_s``, how long ago the bytes just read reached the machine, from the kernel's receive time stamps
 (``SO_TIMESTAMPNS``): UDP, the oldest datagram read (conservative); TCP, the newest bytes read (what the kernel
 gives); until Linux has turned its stamps on (deferred work after the first socket asks, moments after start) a
-read is stamped with its own time and reads as fresh. Serial (no time stamps): the first time the reader saw the kernel's queue reach those bytes
-(:class:`ArrivalTracker`), exact to one read while the reader keeps reading. UDP reads take every datagram
-waiting (up to :data:`UDP_DRAIN_BYTES`) at once.
+read is stamped with its own time and reads as fresh. Serial (no time stamps): the first time the reader saw the
+kernel's queue reach those bytes (:class:`ArrivalTracker`), exact to one read while the reader keeps reading. UDP
+reads take every datagram waiting (up to :data:`UDP_DRAIN_BYTES`) at once.
 """
 
 from __future__ import annotations

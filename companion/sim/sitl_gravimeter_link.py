@@ -23,9 +23,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+from pymavlink.dialects.v20.ardupilotmega import MAV_COMP_ID_AUTOPILOT1, MAV_MODE_FLAG_SAFETY_ARMED
 
 from companion.gravity.maps import LocalGravityMap, load_grid
-from companion.mavlink.decode import MAV_MODE_FLAG_SAFETY_ARMED
 from companion.mavlink.gravimeter import DEFAULT_NAMED_VALUE
 from companion.sim.gravity_residuals import ship_minus_satellite_mgal
 from companion.sim.speed_log import SpeedLog, SpeedLogSpec
@@ -95,7 +95,8 @@ class SitlTide:
                 self.speed_mps = float(m.param_value)
             elif name == TIDE_PARAMS[1] and math.isfinite(m.param_value):
                 self.dir_deg = float(m.param_value)
-        elif kind == "HEARTBEAT" and m.get_srcSystem() == self.system_id and m.get_srcComponent() == 1:
+        elif (kind == "HEARTBEAT" and m.get_srcSystem() == self.system_id
+              and m.get_srcComponent() == MAV_COMP_ID_AUTOPILOT1):
             self.armed = bool(m.base_mode & MAV_MODE_FLAG_SAFETY_ARMED)
 
     def current_ne_mps(self) -> tuple[float, float]:

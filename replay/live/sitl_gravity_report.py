@@ -85,8 +85,8 @@ def verdicts(summary: dict, vehicle: str) -> list[str]:
     rc, hw = B.get("reconverge_s"), B.get("healthy_wait_max_s")
     out.append(f"- back to alone's healthy error: {_m(rc, ' s')}; target <= 30 s: "
                + ("met" if rc is not None and rc <= 30 else "MISSED" + (f" by {rc - 30:.0f} s" if rc is not None else " (never)"))
-               + (f" (the same measure started anywhere in the companion's healthy phase waits at most {_m(hw, ' s')})"
-                  if "healthy_wait_max_s" in B else ""))
+               + (" (the same measure started anywhere in the companion's healthy phase waits at most "
+                  f"{_m(hw, ' s')})" if "healthy_wait_max_s" in B else ""))
     return out
 
 

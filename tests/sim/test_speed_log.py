@@ -99,8 +99,9 @@ def test_link_stamps_the_log_as_the_gravimeter_and_the_decoder_puts_it_on_the_ve
 
 def test_log_reads_through_the_water_of_sitls_tide_once_armed():
     """SITL's tide (SIM_TIDE_SPEED 0.5 m/s coming from SIM_TIDE_DIR 180 deg: flowing north) carries a boat going
-    north at 8 m/s over the ground: through the water it makes 7.5 m/s; going south, 8.5 m/s. Before the autopilot arms SITL applies no tide, and neither does the log; the parameters come as the
-    autopilot's PARAM_VALUE, the armed state from its own HEARTBEAT (not another component's)."""
+    north at 8 m/s over the ground: through the water it makes 7.5 m/s; going south, 8.5 m/s. Before the autopilot
+    arms SITL applies no tide, and neither does the log; the parameters come as the autopilot's PARAM_VALUE, the armed
+    state from its own HEARTBEAT (not another component's)."""
     tide = SitlTide(1)
     for m in _msgs(mav.MAVLink_param_value_message(b"SIM_TIDE_SPEED", 0.5, 9, 1000, -1),
                    mav.MAVLink_param_value_message(b"SIM_TIDE_DIR", 180.0, 9, 1000, -1)):
