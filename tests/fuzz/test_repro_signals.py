@@ -110,3 +110,26 @@ def test_replay_ends_promptly_after_sigterm_on_a_loaded_machine(tmp_path):
     after_s = _children_cpu_s() - reaped_s - before_s  # the replay's whole CPU time, less what it had used before
     assert after_s <= 0.375, f"{after_s:.3f} s of CPU from SIGTERM to exit ({took:.1f} s of wall time)"
     assert not check_mcap(out), check_mcap(out)
+
+
+@pytest.mark.parametrize("after_s", [0.0, 0.02])
+def test_run_sigterm_just_after_the_record_is_created(tmp_path, after_s):
+    """`companion run`: the record is created before the pipeline and the loop are built; a SIGTERM then stops the
+    process cleanly (exit 0) with a readable record."""
+    from tests.conftest import free_port
+
+    out = tmp_path / "live.mcap"
+    proc = subprocess.Popen([*CLI, "run", "--connect", f"udpin:127.0.0.1:{free_port(socket.SOCK_DGRAM)}",
+                             "--out", str(out), "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        _wait_for_file(proc, out)
+        if after_s:
+            time.sleep(after_s)
+        proc.send_signal(signal.SIGTERM)
+        _, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(30)
+    assert proc.returncode == 0, f"exit {proc.returncode}: {stderr[-600:]}"
+    assert not check_mcap(out), check_mcap(out)
