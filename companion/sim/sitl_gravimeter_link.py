@@ -91,9 +91,9 @@ class SitlTide:
         kind = m.get_type()
         if kind == "PARAM_VALUE":
             name = str(m.param_id).rstrip("\x00")
-            if name == TIDE_PARAMS[0] and math.isfinite(m.param_value):
+            if name == "SIM_TIDE_SPEED" and math.isfinite(m.param_value):
                 self.speed_mps = float(m.param_value)
-            elif name == TIDE_PARAMS[1] and math.isfinite(m.param_value):
+            elif name == "SIM_TIDE_DIR" and math.isfinite(m.param_value):
                 self.dir_deg = float(m.param_value)
         elif (kind == "HEARTBEAT" and m.get_srcSystem() == self.system_id
               and m.get_srcComponent() == MAV_COMP_ID_AUTOPILOT1):
